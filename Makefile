@@ -1,0 +1,32 @@
+# One venv, made by `make setup`; `make demo` and `make test` call it themselves.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+DATA    ?= ../shared/data
+DEMO_DIR ?= out/demo
+
+.PHONY: setup demo test test-fast bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+demo: setup
+	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
+
+test: setup
+	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q
+
+test-fast: setup
+	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q -m "not slow"
+
+bench: setup
+	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m bench
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,1 @@
+"""Processes of the capture service: sync, camera workers, fusion, recorder, viewer, launcher."""

@@ -1,0 +1,20 @@
+"""Shared fixtures: the real data lives in ../shared/data (MOCAP_RT_DATA overrides)."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def data_root() -> Path:
+    return Path(os.environ.get("MOCAP_RT_DATA", REPO.parent / "shared" / "data")).resolve()
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    root = data_root()
+    if not root.is_dir():
+        pytest.fail(f"shared data not found at {root} (set MOCAP_RT_DATA)")
+    return root
