@@ -1,0 +1,160 @@
+"""BVH reader/FK/writer against the `bvh` PyPI parser, hand-built rotations and round trips."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import bvh as bvh_pkg
+import numpy as np
+import pytest
+
+from mocap_rt.io.bvh import (BvhError, BvhStreamWriter, forward_kinematics, read_bvh,
+                             write_bvh)
+
+
+def _clips(data_dir: Path) -> list[Path]:
+    clips = sorted((data_dir / "bvh").glob("*/*.bvh"))
+    assert len(clips) >= 13
+    return clips
+
+
+def _elementary(axis: str, deg: np.ndarray) -> np.ndarray:
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    if axis == "X":
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    if axis == "Y":
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def _reference_fk(mocap: "bvh_pkg.Bvh", frame: int) -> dict[str, np.ndarray]:
+    """FK written independently on top of the `bvh` package's parse (one frame)."""
+    out_R, out_p = {}, {}
+    for name in mocap.get_joints_names():
+        chans = mocap.joint_channels(name)
+        vals = mocap.frame_joint_channels(frame, name, chans)
+        t = np.array(mocap.joint_offset(name), dtype=float)
+        R = np.eye(3)
+        for ch, v in zip(chans, vals):
+            if ch.endswith("position"):
+                t["XYZ".index(ch[0])] = float(v)
+            else:
+                R = R @ _elementary(ch[0], float(v))
+        idx = mocap.joint_parent_index(name)
+        if idx < 0:
+            out_R[name], out_p[name] = R, t
+        else:
+            pname = mocap.get_joints_names()[idx]
+            out_R[name] = out_R[pname] @ R
+            out_p[name] = out_p[pname] + out_R[pname] @ t
+    return out_p
+
+
+def test_every_shared_clip_parses_with_constant_bone_lengths(data_dir):
+    for path in _clips(data_dir):
+        clip = read_bvh(path)
+        assert clip.n_frames > 10 and 0 < clip.frame_time_s < 0.05, path
+        pos = forward_kinematics(clip.skeleton, clip.motion, include_end_sites=True)
+        assert np.isfinite(pos).all()
+        sk = clip.skeleton
+        starts = sk.channel_starts
+        for j, joint in enumerate(sk.joints):
+            if joint.parent < 0:
+                continue
+            pcols = [starts[j] + k for k, c in enumerate(joint.channels) if c.endswith("position")]
+            if pcols and np.ptp(clip.motion[:, pcols], axis=0).max() > 1e-6:
+                continue  # a translating joint (Bandai's Hips under joint_Root) is not a bone
+            length = np.linalg.norm(pos[:, j] - pos[:, joint.parent], axis=1)
+            assert np.ptp(length) < 1e-9 * max(1.0, length.max()), (path.name, joint.name)
+        # the bodies are real: root path not constant, head above the feet (Y up files)
+        assert np.ptp(pos[:, 0], axis=0).max() > 0 or np.ptp(pos[:, 1], axis=0).max() > 0
+
+
+def test_matches_bvh_package_parse_and_independent_fk(data_dir):
+    for path in _clips(data_dir):
+        text = path.read_text()
+        ref = bvh_pkg.Bvh(text)
+        clip = read_bvh(path)
+        assert clip.skeleton.names == ref.get_joints_names()
+        assert clip.n_frames == ref.nframes
+        assert clip.frame_time_s == pytest.approx(ref.frame_time)
+        for name in clip.skeleton.names[:: max(1, len(clip.skeleton) // 12)]:
+            j = clip.skeleton.index(name)
+            assert list(clip.skeleton.joints[j].channels) == ref.joint_channels(name)
+            np.testing.assert_allclose(clip.skeleton.joints[j].offset, ref.joint_offset(name))
+        pos = forward_kinematics(clip.skeleton, clip.motion)
+        for f in (0, clip.n_frames // 2, clip.n_frames - 1):
+            expect = _reference_fk(ref, f)
+            got = np.array([pos[f, clip.skeleton.index(n)] for n in expect])
+            np.testing.assert_allclose(got, np.array(list(expect.values())), atol=1e-6)
+
+
+def test_write_read_round_trip(tmp_path, data_dir):
+    clip = read_bvh(data_dir / "bvh" / "cmu" / "cmu_131_01_start_walk_stop.bvh")
+    out = tmp_path / "rt.bvh"
+    write_bvh(out, clip.skeleton, clip.motion[:50], clip.frame_time_s)
+    back = read_bvh(out)
+    assert back.skeleton.names == clip.skeleton.names
+    assert [j.channels for j in back.skeleton.joints] == [j.channels for j in clip.skeleton.joints]
+    np.testing.assert_allclose(back.motion, clip.motion[:50], rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(forward_kinematics(back.skeleton, back.motion, True),
+                               forward_kinematics(clip.skeleton, clip.motion[:50], True), atol=1e-7)
+    assert bvh_pkg.Bvh(out.read_text()).nframes == 50
+
+
+@pytest.mark.parametrize("mutate, words", [
+    (lambda t: t.replace("CHANNELS 3", "CHANNELS x", 1), ["line", "integer"]),
+    (lambda t: t.replace("Zrotation", "Qrotation", 1), ["line", "Qrotation"]),
+    (lambda t: t[: len(t) // 2], ["truncated"]),
+    (lambda t: t.replace("MOTION", "MOTON"), ["MOTON"]),
+])
+def test_bad_files_raise_clear_errors(tmp_path, data_dir, mutate, words):
+    text = (data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh").read_text()
+    bad = tmp_path / "bad.bvh"
+    bad.write_text(mutate(text))
+    with pytest.raises(BvhError) as err:
+        read_bvh(bad)
+    assert "bad.bvh" in str(err.value)
+    for w in words:
+        assert w in str(err.value)
+
+
+def test_stream_writer_survives_sigkill(tmp_path, data_dir):
+    src = data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh"
+    out = tmp_path / "live.bvh"
+    script = textwrap.dedent(f"""
+        import sys, time
+        from mocap_rt.io.bvh import read_bvh, BvhStreamWriter
+        clip = read_bvh({str(src)!r})
+        w = BvhStreamWriter({str(out)!r}, clip.skeleton, 0.01)  # flushes every 100 frames
+        for i in range(10**9):
+            w.write(clip.motion[i % clip.n_frames])
+            if i == 250:
+                print("ready", flush=True)
+            if i > 250:
+                time.sleep(0.0005)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    back = read_bvh(out)
+    assert back.n_frames >= 200 and back.n_frames % 100 == 0
+    clip = read_bvh(src)
+    idx = np.arange(back.n_frames) % clip.n_frames
+    np.testing.assert_allclose(back.motion, clip.motion[idx], rtol=1e-8, atol=1e-9)
+
+
+def test_stream_writer_close_writes_everything(tmp_path, data_dir):
+    clip = read_bvh(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh")
+    with BvhStreamWriter(tmp_path / "s.bvh", clip.skeleton, clip.frame_time_s) as w:
+        for row in clip.motion[:37]:
+            w.write(row)
+    back = read_bvh(tmp_path / "s.bvh")
+    np.testing.assert_allclose(back.motion, clip.motion[:37], rtol=1e-8, atol=1e-9)
