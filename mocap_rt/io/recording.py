@@ -1,0 +1,415 @@
+"""The recorded multi-view stream format (version 1): reader and crash-safe writer.
+
+One directory per recording (full description in ``docs/recording-format.md``)::
+
+    recording.toml          [recording] format, version, fps, cameras, codec, segment_frames
+    rig.toml                the calibrated rig (``mocap_rt.geometry.rig`` TOML)
+    frames.csv              frame,<cam_1>,<cam_2>,...  capture timestamps in seconds
+    video/<cam>/seg_000000.avi ...  each holds ``segment_frames`` consecutive rows
+    backgrounds/<cam>/000.png ...   empty-scene frames (lossless)
+    truth.npz               studio recordings only (see docs)
+
+Row ``k`` of ``frames.csv`` is frame ``k`` of the stream (``k // segment_frames`` is
+its segment). A video segment is written as ``seg_NNNNNN.part.avi`` and renamed to
+``seg_NNNNNN.avi`` once closed, and each table row is flushed as it is written, so
+after a SIGKILL the recording opens with every frame of its closed segments: at most
+one segment (~1 s) is lost.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import math
+import tomllib
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mocap_rt.geometry.rig import Rig, RigFileError, dumps_toml, read_rig, write_rig
+
+log = logging.getLogger(__name__)
+
+FORMAT_NAME = "mocap_rt.recording"
+FORMAT_VERSION = 1
+SUPPORTED_VERSIONS = (1,)
+DEFAULT_CODEC = "MJPG"  # intra-only: exact seeks, a cut file loses only its own frames
+DEFAULT_JPEG_QUALITY = 95
+DEFAULT_SEGMENT_S = 1.0
+_CODEC_EXT = {"MJPG": ".avi", "XVID": ".avi", "FFV1": ".avi", "mp4v": ".mp4"}
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be read; the message names the file and field."""
+
+
+def _segment_name(index: int, ext: str, part: bool = False) -> str:
+    return f"seg_{index:06d}{'.part' if part else ''}{ext}"
+
+
+# ----------------------------------------------------------------------------- writer
+
+class RecordingWriter:
+    """Write a recording directory frame by frame (studio renders or live cameras).
+
+    rig : the cameras, in the order ``write_frame`` receives images.
+    fps : nominal frame rate, Hz.
+    codec : FOURCC of ``cv2.VideoWriter`` (MJPG, XVID, mp4v, FFV1).
+    segment_s : video segment length in seconds (the most a crash can lose).
+    """
+
+    def __init__(self, path: str | Path, rig: Rig, fps: float, codec: str = DEFAULT_CODEC,
+                 segment_s: float = DEFAULT_SEGMENT_S, jpeg_quality: int = DEFAULT_JPEG_QUALITY,
+                 source: str = "studio") -> None:
+        if codec not in _CODEC_EXT:
+            raise ValueError(f"codec must be one of {sorted(_CODEC_EXT)}, got {codec!r}")
+        if fps <= 0:
+            raise ValueError(f"fps must be > 0, got {fps}")
+        self.path = Path(path)
+        self.rig = rig
+        self.fps = float(fps)
+        self.codec = codec
+        self.ext = _CODEC_EXT[codec]
+        self.segment_frames = max(1, int(round(segment_s * fps)))
+        self.jpeg_quality = int(jpeg_quality)
+        self.path.mkdir(parents=True, exist_ok=True)
+        if (self.path / "recording.toml").exists():
+            raise FileExistsError(f"{self.path} already holds a recording; refusing to overwrite it")
+        for cam in rig.cameras:
+            (self.path / "video" / cam.name).mkdir(parents=True, exist_ok=True)
+        write_rig(rig, self.path / "rig.toml")
+        meta = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "fps": self.fps,
+                "cameras": list(rig.names), "codec": codec, "segment_frames": self.segment_frames,
+                "source": source}
+        tmp = self.path / "recording.toml.tmp"
+        tmp.write_text(dumps_toml({"recording": meta}))
+        tmp.replace(self.path / "recording.toml")
+        self._table = open(self.path / "frames.csv", "w", newline="", encoding="utf-8")
+        self._table.write("frame," + ",".join(rig.names) + "\n")
+        self._table.flush()
+        self._writers: list[cv2.VideoWriter] | None = None
+        self._segment = -1
+        self.n_frames = 0
+        self._last_frame: int | None = None
+
+    # -- video segments
+    def _open_segment(self) -> None:
+        self._segment += 1
+        fourcc = cv2.VideoWriter_fourcc(*self.codec)
+        self._writers = []
+        for cam in self.rig.cameras:
+            p = self.path / "video" / cam.name / _segment_name(self._segment, self.ext, part=True)
+            w = cv2.VideoWriter(str(p), cv2.CAP_FFMPEG, fourcc, self.fps, (cam.width, cam.height))
+            if not w.isOpened():
+                raise OSError(f"cv2.VideoWriter could not open {p} with codec {self.codec}")
+            if self.codec == "MJPG":
+                w.set(cv2.VIDEOWRITER_PROP_QUALITY, self.jpeg_quality)
+            self._writers.append(w)
+
+    def _close_segment(self) -> None:
+        if self._writers is None:
+            return
+        for cam, w in zip(self.rig.cameras, self._writers):
+            w.release()
+            d = self.path / "video" / cam.name
+            (d / _segment_name(self._segment, self.ext, part=True)).replace(
+                d / _segment_name(self._segment, self.ext))
+        self._writers = None
+
+    # -- public API
+    def write_backgrounds(self, camera: str | int, frames: np.ndarray) -> None:
+        """Empty-scene frames of one camera: (B, H, W, 3) uint8 BGR, stored lossless (PNG)."""
+        cam = self.rig[camera]
+        frames = np.asarray(frames)
+        if frames.ndim == 3:
+            frames = frames[None]
+        if frames.ndim != 4 or frames.shape[1:] != (cam.height, cam.width, 3) or frames.dtype != np.uint8:
+            raise ValueError(f"backgrounds of {cam.name} must be (B, {cam.height}, {cam.width}, 3) uint8, "
+                             f"got {frames.shape} {frames.dtype}")
+        d = self.path / "backgrounds" / cam.name
+        d.mkdir(parents=True, exist_ok=True)
+        for i, img in enumerate(frames):
+            if not cv2.imwrite(str(d / f"{i:03d}.png"), img):
+                raise OSError(f"could not write {d / f'{i:03d}.png'}")
+
+    def write_frame(self, frame_index: int, images: Sequence[np.ndarray],
+                    timestamps_s: Sequence[float]) -> None:
+        """Append one synchronised frame.
+
+        images : one (H, W, 3) uint8 BGR image per camera, in rig order.
+        timestamps_s : per-camera capture time in seconds (NaN if unknown), rig order.
+        """
+        n = len(self.rig)
+        if len(images) != n or len(timestamps_s) != n:
+            raise ValueError(f"write_frame needs {n} images and {n} timestamps, got "
+                             f"{len(images)} and {len(timestamps_s)}")
+        if self._last_frame is not None and frame_index <= self._last_frame:
+            raise ValueError(f"frame indices must increase: {frame_index} after {self._last_frame}")
+        if self.n_frames % self.segment_frames == 0:
+            self._close_segment()
+            self._open_segment()
+        for cam, w, img in zip(self.rig.cameras, self._writers, images):
+            if img.shape != (cam.height, cam.width, 3) or img.dtype != np.uint8:
+                raise ValueError(f"image for {cam.name} must be ({cam.height}, {cam.width}, 3) uint8, "
+                                 f"got {img.shape} {img.dtype}")
+            w.write(np.ascontiguousarray(img))
+        self._table.write(f"{int(frame_index)}," + ",".join(
+            "" if not math.isfinite(float(t)) else f"{float(t):.6f}" for t in timestamps_s) + "\n")
+        self._table.flush()
+        self.n_frames += 1
+        self._last_frame = int(frame_index)
+
+    def write_truth(self, truth: dict) -> None:
+        """Store the studio's ground truth (``truth.npz``, compressed; see the docs for keys)."""
+        tmp = self.path / "truth.tmp.npz"
+        np.savez_compressed(tmp, **{k: np.asarray(v) for k, v in truth.items()})
+        tmp.replace(self.path / "truth.npz")
+
+    def close(self) -> None:
+        self._close_segment()
+        if not self._table.closed:
+            self._table.close()
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# ----------------------------------------------------------------------------- reader
+
+class Recording:
+    """Read a recording directory; validates it on open (``RecordingError`` if bad).
+
+    Attributes: ``path``, ``rig``, ``camera_names``, ``fps``, ``codec``, ``n_frames``,
+    ``frames`` (F,) int64, ``timestamps`` (F, C) float64 seconds (NaN where unknown).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise FileNotFoundError(f"recording directory not found: {self.path}")
+        self._read_meta()
+        try:
+            self.rig = read_rig(self.path / "rig.toml")
+        except FileNotFoundError:
+            raise RecordingError(f"{self.path / 'rig.toml'}: missing (every recording has its rig)") from None
+        except RigFileError as exc:
+            raise RecordingError(f"{self.path / 'rig.toml'}: {exc}") from None
+        if list(self.rig.names) != self.camera_names:
+            raise RecordingError(f"{self.path / 'recording.toml'}: field 'cameras' {self.camera_names} "
+                                 f"does not match the rig's cameras {list(self.rig.names)}")
+        self._read_table()
+        self._segments = {name: self._scan_segments(name) for name in self.camera_names}
+        self._limit_to_complete_segments()
+        self._cap: dict[str, tuple[int, cv2.VideoCapture, int]] = {}  # name -> (segment, cap, next pos)
+        self._truth: dict | None = None
+
+    # -- validation
+    def _read_meta(self) -> None:
+        p = self.path / "recording.toml"
+        try:
+            meta = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise RecordingError(f"{p}: missing; {self.path} is not a recording") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise RecordingError(f"{p}: not valid TOML: {exc}") from None
+        rec = meta.get("recording")
+        if not isinstance(rec, dict):
+            raise RecordingError(f"{p}: no [recording] table")
+        if rec.get("format") != FORMAT_NAME:
+            raise RecordingError(f"{p}: field 'format' is {rec.get('format')!r}, expected {FORMAT_NAME!r}")
+        version = rec.get("version")
+        if version not in SUPPORTED_VERSIONS:
+            raise RecordingError(f"{p}: field 'version' = {version!r} is not supported "
+                                 f"(this reader knows {list(SUPPORTED_VERSIONS)})")
+        for key, typ in (("fps", (int, float)), ("cameras", list), ("codec", str), ("segment_frames", int)):
+            if not isinstance(rec.get(key), typ):
+                raise RecordingError(f"{p}: field {key!r} missing or of the wrong type")
+        if rec["codec"] not in _CODEC_EXT:
+            raise RecordingError(f"{p}: field 'codec' = {rec['codec']!r} unknown")
+        self.fps = float(rec["fps"])
+        self.camera_names = [str(c) for c in rec["cameras"]]
+        self.codec = rec["codec"]
+        self.segment_frames = int(rec["segment_frames"])
+        self.source = str(rec.get("source", ""))
+        self._ext = _CODEC_EXT[self.codec]
+
+    def _read_table(self) -> None:
+        p = self.path / "frames.csv"
+        try:
+            text = p.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise RecordingError(f"{p}: missing (the per-frame table)") from None
+        lines = text.split("\n")
+        if lines and lines[-1] != "":
+            lines = lines[:-1]  # a crash mid-row: drop the incomplete last line
+        rows = list(csv.reader(io.StringIO("\n".join(lines))))
+        if not rows or rows[0] != ["frame", *self.camera_names]:
+            raise RecordingError(f"{p}: header must be 'frame,{','.join(self.camera_names)}', "
+                                 f"got {','.join(rows[0]) if rows else '(empty)'!r}")
+        frames, stamps = [], []
+        for k, row in enumerate(rows[1:], start=2):
+            if len(row) != len(self.camera_names) + 1:
+                raise RecordingError(f"{p}, line {k}: {len(row)} fields, expected {len(self.camera_names) + 1}")
+            try:
+                frames.append(int(row[0]))
+                stamps.append([float(v) if v else math.nan for v in row[1:]])
+            except ValueError:
+                raise RecordingError(f"{p}, line {k}: not a number") from None
+        self.frames = np.array(frames, dtype=np.int64)
+        self.timestamps = np.array(stamps, dtype=np.float64).reshape(-1, len(self.camera_names))
+        if np.any(np.diff(self.frames) <= 0):
+            raise RecordingError(f"{p}: frame indices must increase")
+
+    def _scan_segments(self, name: str) -> list[Path]:
+        d = self.path / "video" / name
+        if not d.is_dir():
+            raise RecordingError(f"{d}: video folder of camera {name!r} is missing")
+        segs = sorted(d.glob("seg_[0-9][0-9][0-9][0-9][0-9][0-9]" + self._ext))
+        for i, s in enumerate(segs):
+            if s.name != _segment_name(i, self._ext):
+                raise RecordingError(f"{d}: segment {_segment_name(i, self._ext)} is missing")
+        return segs
+
+    def _limit_to_complete_segments(self) -> None:
+        n_rows = len(self.frames)
+        n_seg = min(len(s) for s in self._segments.values()) if self._segments else 0
+        n = min(n_rows, n_seg * self.segment_frames)
+        if n < n_rows:
+            log.warning("%s: %d of %d frames have no closed video segment (interrupted recording); "
+                        "using the first %d", self.path, n_rows - n, n_rows, n)
+        self.n_frames = n
+        self.frames = self.frames[:n]
+        self.timestamps = self.timestamps[:n]
+        if n == 0 and n_rows > 0:
+            raise RecordingError(f"{self.path / 'video'}: no complete video segment")
+        for name, segs in self._segments.items():
+            for s in segs[: math.ceil(n / self.segment_frames) if n else 0]:
+                if s.stat().st_size == 0:
+                    raise RecordingError(f"{s}: empty video file")
+
+    def _expected_len(self, segment: int) -> int:
+        return min(self.segment_frames, self.n_frames - segment * self.segment_frames)
+
+    def validate(self) -> None:
+        """Demux every frame of every segment; ``RecordingError`` names a truncated file.
+
+        Costs about a tenth of a full decode; ``Recording(...)`` itself only checks
+        what is cheap (files present, table, headers).
+        """
+        for name in self.camera_names:
+            for seg in range(math.ceil(self.n_frames / self.segment_frames)):
+                cap = self._open(name, seg)
+                try:
+                    for pos in range(self._expected_len(seg)):
+                        if not cap.grab():
+                            raise RecordingError(f"{self._segments[name][seg]}: truncated video, "
+                                                 f"frame {pos} of {self._expected_len(seg)} is missing")
+                finally:
+                    cap.release()
+
+    # -- frames
+    def _cam_name(self, camera: str | int) -> str:
+        if isinstance(camera, (int, np.integer)):
+            if not 0 <= camera < len(self.camera_names):
+                raise IndexError(f"camera index {camera} out of range 0..{len(self.camera_names) - 1}")
+            return self.camera_names[int(camera)]
+        if camera not in self.camera_names:
+            raise KeyError(f"{self.path}: no camera named {camera!r} (cameras: {self.camera_names})")
+        return camera
+
+    def _open(self, name: str, segment: int) -> cv2.VideoCapture:
+        path = self._segments[name][segment]
+        cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+        if not cap.isOpened():
+            raise RecordingError(f"{path}: cannot be opened as video")
+        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        if count < self._expected_len(segment):
+            cap.release()
+            raise RecordingError(f"{path}: truncated video, {count} frames but the table needs "
+                                 f"{self._expected_len(segment)}")
+        return cap
+
+    def read_frame(self, camera: str | int, frame_index: int) -> np.ndarray:
+        """Image of one camera at stream position ``frame_index`` (0..n_frames-1).
+
+        Returns (H, W, 3) uint8 BGR. Sequential reads decode without seeking.
+        """
+        name = self._cam_name(camera)
+        if not 0 <= frame_index < self.n_frames:
+            raise IndexError(f"frame_index {frame_index} out of range 0..{self.n_frames - 1}")
+        seg, pos = divmod(int(frame_index), self.segment_frames)
+        cur = self._cap.get(name)
+        if cur is None or cur[0] != seg:
+            if cur is not None:
+                cur[1].release()
+            cur = (seg, self._open(name, seg), 0)
+        cap = cur[1]
+        if cur[2] != pos:
+            cap.set(cv2.CAP_PROP_POS_FRAMES, pos)
+        ok, img = cap.read()
+        if not ok or img is None:
+            raise RecordingError(f"{self._segments[name][seg]}: cannot decode frame {pos} (truncated video?)")
+        self._cap[name] = (seg, cap, pos + 1)
+        return img
+
+    def iter_frames(self, camera: str | int) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield (frame_index, image) for one camera, sequentially."""
+        name = self._cam_name(camera)
+        for seg in range(math.ceil(self.n_frames / self.segment_frames)):
+            cap = self._open(name, seg)
+            try:
+                for pos in range(self._expected_len(seg)):
+                    ok, img = cap.read()
+                    if not ok:
+                        raise RecordingError(f"{self._segments[name][seg]}: cannot decode frame {pos}")
+                    yield seg * self.segment_frames + pos, img
+            finally:
+                cap.release()
+
+    def backgrounds(self, camera: str | int) -> np.ndarray:
+        """Empty-scene frames of one camera: (B, H, W, 3) uint8 BGR (B may be 0)."""
+        name = self._cam_name(camera)
+        cam = self.rig[name]
+        files = sorted((self.path / "backgrounds" / name).glob("*.png"))
+        out = np.empty((len(files), cam.height, cam.width, 3), np.uint8)
+        for i, f in enumerate(files):
+            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if img is None or img.shape != out.shape[1:]:
+                raise RecordingError(f"{f}: unreadable or not {cam.width}x{cam.height}")
+            out[i] = img
+        return out
+
+    @property
+    def truth(self) -> dict | None:
+        """Ground truth from ``truth.npz`` (studio only), loaded on first access; else None."""
+        if self._truth is None:
+            p = self.path / "truth.npz"
+            if not p.exists():
+                return None
+            try:
+                with np.load(p, allow_pickle=False) as z:
+                    self._truth = {k: z[k] for k in z.files}
+            except (OSError, ValueError) as exc:
+                raise RecordingError(f"{p}: unreadable: {exc}") from None
+        return self._truth
+
+    def close(self) -> None:
+        for _, cap, _ in self._cap.values():
+            cap.release()
+        self._cap.clear()
+
+    def __enter__(self) -> "Recording":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return (f"Recording({str(self.path)!r}, cameras={self.camera_names}, fps={self.fps}, "
+                f"n_frames={self.n_frames})")
