@@ -1,0 +1,181 @@
+"""Camera worker: one process per camera (seed digest A.6, the 2D-processing PCs).
+
+On each trigger: grab (replay: the recording frame of that id; live: the grabber's newest
+frame), perceive with ``CameraPerceiver`` using fusion's prediction for that frame when it
+arrived (labelling + occlusion, seed A.4), publish the cues. Triggers that arrive while a
+frame is still being processed are not queued: only the newest is kept, the others are
+counted as drops (a late frame is worthless to a real-time fusion).
+
+Optional outputs: a JPEG preview every ``--preview-every`` frames (for the viewer) and, for
+live sources with ``--publish-frames``, the raw images and backgrounds (for the recorder).
+
+    python -m nodes.camera_worker --rig RIG.toml --camera cam_1 --source replay:REC_DIR
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+
+from nodes.messages import Background, Cues, Frame, Keys, Prediction, Preview, Trigger
+from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
+from nodes.transport import open_session
+
+log = logging.getLogger(__name__)
+
+PREVIEW_JPEG_QUALITY = 70
+TRIGGER_WAIT_S = 0.2           # wake up this often to send status while idle
+PREDICTIONS_KEPT = 8           # predictions for the coming frames kept by frame id
+
+
+class TriggerSlot:
+    """The newest trigger, filled by the Zenoh callback; older unread ones count as drops."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._trigger: Trigger | None = None
+        self.overwritten = 0
+
+    def put(self, trig: Trigger) -> None:
+        with self._cond:
+            if self._trigger is not None:
+                self.overwritten += 1
+            self._trigger = trig
+            self._cond.notify()
+
+    def take(self, timeout_s: float) -> Trigger | None:
+        with self._cond:
+            if self._trigger is None:
+                self._cond.wait(timeout_s)
+            trig, self._trigger = self._trigger, None
+            return trig
+
+
+class PredictionBox:
+    """Predictions by frame id (a few kept), filled by the Zenoh callback."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._by_frame: dict[int, object] = {}
+
+    def put(self, pred) -> None:
+        with self._lock:
+            self._by_frame[pred.frame] = pred
+            if len(self._by_frame) > PREDICTIONS_KEPT:
+                for f in sorted(self._by_frame)[:-PREDICTIONS_KEPT]:
+                    del self._by_frame[f]
+
+    def get(self, frame: int):
+        with self._lock:
+            return self._by_frame.get(frame)
+
+
+def make_perceiver(camera, backgrounds, config_path=None):
+    """C's ``CameraPerceiver`` with the default (or given) perception config."""
+    from mocap_rt.perception import pipeline
+
+    if config_path is not None:
+        config = pipeline.load_perception_config(config_path)
+        return pipeline.CameraPerceiver(camera, backgrounds, config)
+    return pipeline.CameraPerceiver(camera, backgrounds)
+
+
+def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
+               preview_every: int = 0, publish_frames: bool = False) -> None:
+    """The worker loop until ``rt.stop``: trigger -> grab -> perceive -> publish."""
+    import cv2
+
+    name = camera.name
+    slot, preds = TriggerSlot(), PredictionBox()
+
+    def on_trigger(sample) -> None:
+        trig = rt.decoder.decode(sample.payload, Trigger)
+        if trig is not None:
+            slot.put(trig)
+
+    def on_prediction(sample) -> None:
+        msg = rt.decoder.decode(sample.payload, Prediction)
+        if msg is not None and msg.prediction.camera == name:
+            preds.put(msg.prediction)
+
+    cues_pub = session.declare_publisher(keys.cues(name), express=True)
+    preview_pub = session.declare_publisher(keys.preview(name)) if preview_every > 0 else None
+    frame_pub = session.declare_publisher(keys.frame(name)) if publish_frames else None
+    subs = [session.declare_subscriber(keys.trigger, on_trigger),
+            session.declare_subscriber(keys.prediction(name), on_prediction)]
+    rt.publish_status("running", force=True)
+    used_pred = 0
+    try:
+        while not rt.stop.is_set():
+            trig = slot.take(TRIGGER_WAIT_S)
+            rt.drops = slot.overwritten
+            if trig is None:
+                rt.publish_status()
+                continue
+            t0 = time.perf_counter()
+            try:
+                grab = source.grab(trig.frame)
+            except (TimeoutError, OSError, ValueError) as exc:
+                log.warning("%s: frame %d not grabbed: %s", name, trig.frame, exc)
+                rt.publish_status()
+                continue
+            pred = preds.get(trig.frame)
+            used_pred += pred is not None
+            cues = perceiver.process(grab.image, trig.frame, pred)
+            work_ms = (time.perf_counter() - t0) * 1e3
+            cues_pub.put(Cues(keys.rig, cues, trig.t_mono_ns, grab.t_mono_ns, work_ms).to_msgpack())
+            rt.meter.add(work_ms)
+            rt.extra["predictions_used"] = used_pred
+            if frame_pub is not None:
+                frame_pub.put(Frame(keys.rig, name, trig.frame, grab.t_wall_ns, grab.image).to_msgpack())
+            if preview_pub is not None and trig.frame % preview_every == 0:
+                ok, jpg = cv2.imencode(".jpg", grab.image, [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_JPEG_QUALITY])
+                if ok:
+                    preview_pub.put(Preview(keys.rig, name, trig.frame, jpg.tobytes()).to_msgpack())
+            rt.publish_status()
+    finally:
+        for s in subs:
+            s.undeclare()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = base_parser(__doc__.splitlines()[0], "")
+    p.add_argument("--camera", required=True, help="camera name in the rig")
+    p.add_argument("--source", required=True, help="replay:REC_DIR | v4l2:/dev/videoN | fake:REC_DIR")
+    p.add_argument("--fps", type=float, default=30.0, help="live device frame rate")
+    p.add_argument("--perception-config", default=None, help="perception TOML (default: built-in)")
+    p.add_argument("--preview-every", type=int, default=0, help="publish a JPEG every N frames (0 = never)")
+    p.add_argument("--publish-frames", action="store_true", help="publish raw frames + backgrounds (recorder)")
+    args = p.parse_args(argv)
+    setup_logging(args.log_level)
+    rig = load_rig(args)
+    camera = rig[args.camera]
+    node = args.node or f"worker-{camera.name}"
+    keys = Keys(args.rig_name)
+    from nodes.sources import open_source
+
+    source = open_source(args.source, camera, args.fps)
+    with open_session(args) as session:
+        rt = NodeRuntime(session, keys, node, "camera")
+        rt.install_signal_handlers()
+        rt.publish_status("starting", force=True)
+        try:
+            backgrounds = source.backgrounds()
+            perceiver = make_perceiver(camera, backgrounds, args.perception_config)
+            perceiver.process(backgrounds[0], 0, None)   # warm-up: JIT compile, caches
+            if args.publish_frames and source.live:
+                session.put(keys.background(camera.name),
+                            Background(keys.rig, camera.name, backgrounds).to_msgpack())
+            rt.publish_status("ready", force=True)
+            run_worker(session, keys, camera, source, perceiver, rt, args.preview_every,
+                       args.publish_frames and source.live)
+            rt.publish_status("stopping", force=True)
+        finally:
+            source.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

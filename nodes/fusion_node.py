@@ -1,0 +1,237 @@
+"""Fusion node: gathers each frame's cues, fuses and solves IK, publishes pose + prediction.
+
+Seed digest A.6 (the PC that does 3D reconstruction and motion generation). For frame ``k``
+the node waits until every *live* camera answered or the deadline
+``t_trigger + deadline_frac * period`` passed, whichever is first, then calls
+``BodyTracker.step`` with the cameras it has, publishes the next frame's ``CuePrediction``
+for every camera (first, so workers have it before the next trigger) and then the ``Pose``,
+which names the cameras used and the cameras missing. A camera is live when its cues arrived
+within ``LIVENESS_S``; a killed worker therefore costs at most a deadline on a few frames,
+and a restarted one is counted again with its first answer.
+
+    python -m nodes.fusion_node --rig RIG.toml [--deadline-frac 0.8]
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nodes.messages import Cues, Keys, Pose, Prediction, Trigger
+from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
+from nodes.transport import open_session
+
+log = logging.getLogger(__name__)
+
+DEFAULT_DEADLINE_FRAC = 0.8     # of the frame period, after the trigger
+FREE_RUN_DEADLINE_S = 0.1       # deadline when the sync free-runs (period 0)
+LIVENESS_S = 0.25               # a camera silent this long is not waited for
+MAX_PENDING_FRAMES = 64         # frames gathered at once (older ones are dropped)
+
+
+@dataclass
+class PendingFrame:
+    """Cues gathered so far for one frame."""
+
+    frame: int
+    t_trigger_mono_ns: int
+    deadline_ns: int
+    cues: dict = field(default_factory=dict)       # camera -> CameraCues
+    t_first_ns: int = 0
+
+
+class FrameGatherer:
+    """Collects cues per frame and decides when a frame is ready (all live, or deadline).
+
+    Pure bookkeeping on monotonic ns stamps, so it is tested without Zenoh.
+    """
+
+    def __init__(self, cameras: list[str], deadline_frac: float = DEFAULT_DEADLINE_FRAC,
+                 liveness_s: float = LIVENESS_S) -> None:
+        self.cameras = list(cameras)
+        self.deadline_frac = deadline_frac
+        self.liveness_ns = int(liveness_s * 1e9)
+        self.period_ns = 0
+        self.pending: dict[int, PendingFrame] = {}
+        self.last_seen: dict[str, int] = {}
+        self.last_done = -1
+        self.late_cues = 0
+        self.frames_dropped = 0
+
+    def _deadline(self, t_trigger_ns: int) -> int:
+        if self.period_ns > 0:
+            return t_trigger_ns + int(self.deadline_frac * self.period_ns)
+        return t_trigger_ns + int(FREE_RUN_DEADLINE_S * 1e9)
+
+    def _get(self, frame: int, t_trigger_ns: int) -> PendingFrame | None:
+        if frame <= self.last_done:
+            return None
+        pf = self.pending.get(frame)
+        if pf is None:
+            pf = PendingFrame(frame, t_trigger_ns, self._deadline(t_trigger_ns))
+            self.pending[frame] = pf
+            if len(self.pending) > MAX_PENDING_FRAMES:
+                oldest = min(self.pending)
+                del self.pending[oldest]
+                self.frames_dropped += 1
+        return pf
+
+    def on_trigger(self, trig: Trigger) -> None:
+        self.period_ns = trig.period_ns
+        self._get(trig.frame, trig.t_mono_ns)
+
+    def on_cues(self, msg: Cues, now_ns: int) -> None:
+        if msg.camera not in self.cameras:
+            return
+        self.last_seen[msg.camera] = now_ns
+        pf = self._get(msg.frame, msg.t_trigger_mono_ns)
+        if pf is None:
+            self.late_cues += 1
+            return
+        pf.cues[msg.camera] = msg.cues
+        pf.t_first_ns = pf.t_first_ns or now_ns
+
+    def live(self, now_ns: int) -> set[str]:
+        return {c for c, t in self.last_seen.items() if now_ns - t <= self.liveness_ns}
+
+    def ready(self, now_ns: int) -> list[PendingFrame]:
+        """Frames to fuse now, oldest first; frames overtaken by a ready newer one are dropped."""
+        live = self.live(now_ns)
+        out: list[PendingFrame] = []
+        for f in sorted(self.pending):
+            pf = self.pending[f]
+            complete = bool(pf.cues) and live <= set(pf.cues)
+            if complete or now_ns >= pf.deadline_ns:
+                out.append(pf)
+        if not out:
+            return out
+        newest = out[-1].frame
+        for f in [f for f in self.pending if f <= newest]:
+            del self.pending[f]
+        self.last_done = max(self.last_done, newest)
+        # frames with no cues at all produce no pose: they are drops
+        kept = [pf for pf in out if pf.cues]
+        self.frames_dropped += len(out) - len(kept)
+        return kept
+
+    def next_deadline_ns(self) -> int | None:
+        return min((pf.deadline_ns for pf in self.pending.values()), default=None)
+
+
+def make_tracker(rig):
+    """D's ``BodyTracker`` with its default config."""
+    from mocap_rt.fusion.tracker import BodyTracker
+
+    return BodyTracker(rig)
+
+
+def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[str], pred_pubs: dict,
+                     pose_pub, rt: NodeRuntime) -> Pose | None:
+    """Step the tracker on one gathered frame, publish predictions then the pose."""
+    t0 = time.perf_counter()
+    try:
+        result = tracker.step(pf.frame, pf.cues)
+        t1 = time.perf_counter()
+        predictions = tracker.predict(pf.frame + 1)
+    except Exception as exc:  # a fusion failure on one frame must not end the service
+        log.exception("fusion: frame %d failed: %s", pf.frame, exc)
+        rt.extra["fusion_errors"] = rt.extra.get("fusion_errors", 0) + 1
+        return None
+    t2 = time.perf_counter()
+    for cam, pred in predictions.items():
+        pub = pred_pubs.get(cam)
+        if pub is not None:
+            pub.put(Prediction(keys.rig, pred).to_msgpack())
+    used = tuple(c for c in rig_cameras if c in pf.cues)
+    missing = tuple(c for c in rig_cameras if c not in pf.cues)
+    timings = {"step_ms": (t1 - t0) * 1e3, "predict_ms": (t2 - t1) * 1e3,
+               "gather_ms": (time.monotonic_ns() - pf.t_trigger_mono_ns) / 1e6 - (t2 - t0) * 1e3}
+    timings.update({f"lib_{k}": float(v) for k, v in dict(getattr(result, "timings_ms", {})).items()})
+    pose = Pose(keys.rig, pf.frame, pf.t_trigger_mono_ns, time.monotonic_ns(),
+                np.asarray(result.cues_3d, np.float64), np.asarray(result.cue_valid, bool),
+                np.asarray(result.joints, np.float64), np.asarray(result.bvh_frame, np.float64),
+                used, missing, timings)
+    pose_pub.put(pose.to_msgpack())
+    rt.meter.add((t2 - t0) * 1e3)
+    return pose
+
+
+def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
+               deadline_frac: float = DEFAULT_DEADLINE_FRAC) -> None:
+    """The fusion loop until ``rt.stop``."""
+    rig_cameras = list(rig.names)
+    gather = FrameGatherer(rig_cameras, deadline_frac)
+    inbox: queue.SimpleQueue = queue.SimpleQueue()
+
+    def on_trigger(sample) -> None:
+        msg = rt.decoder.decode(sample.payload, Trigger)
+        if msg is not None:
+            inbox.put(msg)
+
+    def on_cues(sample) -> None:
+        msg = rt.decoder.decode(sample.payload, Cues)
+        if msg is not None:
+            inbox.put(msg)
+
+    pose_pub = session.declare_publisher(keys.pose, express=True)
+    pred_pubs = {c: session.declare_publisher(keys.prediction(c), express=True) for c in rig_cameras}
+    subs = [session.declare_subscriber(keys.trigger, on_trigger),
+            session.declare_subscriber(keys.cues(), on_cues)]
+    rt.publish_status("running", force=True)
+    try:
+        while not rt.stop.is_set():
+            now = time.monotonic_ns()
+            nd = gather.next_deadline_ns()
+            timeout = 0.1 if nd is None else min(0.1, max(0.0, (nd - now) / 1e9))
+            try:
+                msg = inbox.get(timeout=timeout)
+            except queue.Empty:
+                msg = None
+            while msg is not None:
+                if isinstance(msg, Trigger):
+                    gather.on_trigger(msg)
+                else:
+                    gather.on_cues(msg, time.monotonic_ns())
+                try:
+                    msg = inbox.get_nowait()
+                except queue.Empty:
+                    msg = None
+            for pf in gather.ready(time.monotonic_ns()):
+                fuse_and_publish(tracker, keys, pf, rig_cameras, pred_pubs, pose_pub, rt)
+            rt.drops = gather.frames_dropped + int(rt.extra.get("fusion_errors", 0))
+            rt.extra["late_cues"] = gather.late_cues
+            rt.extra["cameras_live"] = len(gather.live(time.monotonic_ns()))
+            rt.publish_status()
+    finally:
+        for s in subs:
+            s.undeclare()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = base_parser(__doc__.splitlines()[0], "fusion")
+    p.add_argument("--deadline-frac", type=float, default=DEFAULT_DEADLINE_FRAC,
+                   help="wait for late cameras at most this fraction of the frame period")
+    args = p.parse_args(argv)
+    setup_logging(args.log_level)
+    if not 0.0 < args.deadline_frac <= 1.0:
+        raise ValueError(f"--deadline-frac must be in (0, 1], got {args.deadline_frac}")
+    rig = load_rig(args)
+    keys = Keys(args.rig_name)
+    with open_session(args) as session:
+        rt = NodeRuntime(session, keys, args.node, "fusion")
+        rt.install_signal_handlers()
+        rt.publish_status("starting", force=True)
+        tracker = make_tracker(rig)
+        rt.publish_status("ready", force=True)
+        run_fusion(session, keys, rig, tracker, rt, args.deadline_frac)
+        rt.publish_status("stopping", force=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,268 @@
+"""Recorder node: poses to BVH + NPZ, and (live sources) the raw multi-view stream.
+
+Outputs in ``--out DIR``:
+
+* ``poses.bvh`` — ``BvhStreamWriter`` on the tracker's skeleton, flushed every second;
+* ``poses.npz`` — every pose so far (see ``PoseLog``), rewritten atomically every
+  ``SNAPSHOT_PERIOD_S`` (write to a temporary file, then rename);
+* ``stream/`` — with ``--raw``: the cameras' raw images via ``RecordingWriter`` (the
+  recorded-stream format, ~1 s video segments), so a live session can be replayed.
+
+Crash safety: after SIGKILL every file opens and at most the last second is lost (BVH and
+the stream by their writers' design, NPZ by the atomic snapshot).
+
+    python -m nodes.recorder --rig RIG.toml --out DIR [--raw] [--fps 30]
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from nodes.messages import Background, Frame, Keys, Pose
+from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
+from nodes.transport import open_session
+
+log = logging.getLogger(__name__)
+
+SNAPSHOT_PERIOD_S = 1.0        # NPZ snapshot period: the most a crash can lose
+RAW_GATHER_S = 1.0             # wait this long for every camera's image of a frame
+POSES_NPZ = "poses.npz"
+POSES_BVH = "poses.bvh"
+STREAM_DIR = "stream"
+
+
+class PoseLog:
+    """Poses accumulated in memory and snapshotted to ``poses.npz`` atomically.
+
+    Arrays (F frames): ``frames`` (F,) int64; ``joints`` (F, 20, 3) float64 metres, world;
+    ``cues_3d`` (F, 6, 3); ``cue_valid`` (F, 6) bool; ``cameras_used`` (F, C) bool in
+    ``camera_names`` order; ``latency_ms`` (F,) trigger -> pose published (same host);
+    ``bvh_motion`` (F, n_channels); plus ``joint_names``, ``cue_names``, ``camera_names``.
+    """
+
+    def __init__(self, path: Path, camera_names: list[str]) -> None:
+        self.path = Path(path)
+        self.camera_names = list(camera_names)
+        self._rows: dict[str, list] = {k: [] for k in
+                                       ("frames", "joints", "cues_3d", "cue_valid", "cameras_used",
+                                        "latency_ms", "bvh_motion")}
+        self._dirty = False
+
+    def __len__(self) -> int:
+        return len(self._rows["frames"])
+
+    def add(self, pose: Pose) -> None:
+        r = self._rows
+        r["frames"].append(pose.frame)
+        r["joints"].append(pose.joints)
+        r["cues_3d"].append(pose.cues_3d)
+        r["cue_valid"].append(pose.cue_valid)
+        r["cameras_used"].append([c in pose.cameras_used for c in self.camera_names])
+        r["latency_ms"].append((pose.t_pub_mono_ns - pose.t_trigger_mono_ns) / 1e6)
+        r["bvh_motion"].append(pose.bvh_frame)
+        self._dirty = True
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        from mocap_rt.names import CUE_NAMES, JOINT_NAMES
+
+        r = self._rows
+        n_ch = len(r["bvh_motion"][0]) if r["bvh_motion"] else 0
+        return {"frames": np.asarray(r["frames"], np.int64),
+                "joints": np.asarray(r["joints"], np.float64).reshape(-1, len(JOINT_NAMES), 3),
+                "cues_3d": np.asarray(r["cues_3d"], np.float64).reshape(-1, len(CUE_NAMES), 3),
+                "cue_valid": np.asarray(r["cue_valid"], bool).reshape(-1, len(CUE_NAMES)),
+                "cameras_used": np.asarray(r["cameras_used"], bool).reshape(-1, len(self.camera_names)),
+                "latency_ms": np.asarray(r["latency_ms"], np.float64),
+                "bvh_motion": np.asarray(r["bvh_motion"], np.float64).reshape(-1, n_ch),
+                "joint_names": np.asarray(JOINT_NAMES), "cue_names": np.asarray(CUE_NAMES),
+                "camera_names": np.asarray(self.camera_names)}
+
+    def snapshot(self) -> None:
+        """Write ``poses.npz`` atomically (tmp file + fsync + rename)."""
+        if not self._dirty:
+            return
+        tmp = self.path.with_name(self.path.stem + ".tmp.npz")
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **self.arrays())
+            fh.flush()
+            os.fsync(fh.fileno())
+        tmp.replace(self.path)
+        self._dirty = False
+
+
+class RawStream:
+    """Assembles per-camera ``Frame`` messages into synchronised rows of a RecordingWriter.
+
+    A frame is written once every camera's image arrived, or after ``RAW_GATHER_S`` with
+    black images (timestamp NaN) for the cameras that did not send one.
+    """
+
+    def __init__(self, path: Path, rig, fps: float) -> None:
+        from mocap_rt.io.recording import RecordingWriter
+
+        self.rig = rig
+        self.writer = RecordingWriter(path, rig, fps, source="live")
+        self.pending: dict[int, dict[str, Frame]] = {}
+        self.first_seen: dict[int, float] = {}
+        self.last_written = -1
+        self.backgrounds_done: set[str] = set()
+        self.frames_written = 0
+        self.frames_incomplete = 0
+        self.late = 0
+
+    def on_background(self, msg: Background) -> None:
+        if msg.camera in self.backgrounds_done or msg.camera not in self.rig.names:
+            return
+        self.writer.write_backgrounds(msg.camera, msg.images)
+        self.backgrounds_done.add(msg.camera)
+
+    def on_frame(self, msg: Frame, now: float) -> None:
+        if msg.frame <= self.last_written:
+            self.late += 1
+            return
+        self.pending.setdefault(msg.frame, {})[msg.camera] = msg
+        self.first_seen.setdefault(msg.frame, now)
+
+    def flush_ready(self, now: float, force: bool = False) -> None:
+        names = list(self.rig.names)
+        for f in sorted(self.pending):
+            got = self.pending[f]
+            if not (force or len(got) == len(names) or now - self.first_seen[f] > RAW_GATHER_S):
+                break
+            images, stamps = [], []
+            for cam in self.rig.cameras:
+                m = got.get(cam.name)
+                ok = m is not None and m.image.shape == (cam.height, cam.width, 3)
+                images.append(m.image if ok else np.zeros((cam.height, cam.width, 3), np.uint8))
+                stamps.append(m.t_grab_wall_ns / 1e9 if ok else float("nan"))
+            self.frames_incomplete += len(got) < len(names)
+            self.writer.write_frame(f, images, stamps)
+            self.frames_written += 1
+            self.last_written = f
+            del self.pending[f], self.first_seen[f]
+
+    def close(self) -> None:
+        self.flush_ready(time.monotonic(), force=True)
+        self.writer.close()
+
+
+def bvh_skeleton_for(rig):
+    """The BVH skeleton the fusion node's tracker writes motion for."""
+    from nodes.fusion_node import make_tracker
+
+    return make_tracker(rig).bvh_skeleton
+
+
+def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool, rt: NodeRuntime) -> None:
+    """Record until ``rt.stop``; every file is closed cleanly on the way out."""
+    from mocap_rt.io.bvh import BvhStreamWriter
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    poses = PoseLog(out_dir / POSES_NPZ, list(rig.names))
+    bvh = BvhStreamWriter(out_dir / POSES_BVH, bvh_skeleton_for(rig), 1.0 / fps)
+    stream = RawStream(out_dir / STREAM_DIR, rig, fps) if raw else None
+    inbox: queue.SimpleQueue = queue.SimpleQueue()
+
+    def on_pose(sample) -> None:
+        msg = rt.decoder.decode(sample.payload, Pose)
+        if msg is not None:
+            inbox.put(msg)
+
+    def on_frame(sample) -> None:
+        msg = rt.decoder.decode(sample.payload, Frame)
+        if msg is not None:
+            inbox.put(msg)
+
+    def on_background(sample) -> None:
+        msg = rt.decoder.decode(sample.payload, Background)
+        if msg is not None:
+            inbox.put(msg)
+
+    subs = [session.declare_subscriber(keys.pose, on_pose)]
+    if raw:
+        subs += [session.declare_subscriber(keys.frame(), on_frame),
+                 session.declare_subscriber(keys.background(), on_background)]
+    rt.publish_status("running", force=True)
+    last_snap = time.monotonic()
+    last_frame = -1
+    try:
+        while not rt.stop.is_set():
+            try:
+                msg = inbox.get(timeout=0.1)
+            except queue.Empty:
+                msg = None
+            t0 = time.perf_counter()
+            if isinstance(msg, Pose):
+                if msg.frame > last_frame:
+                    poses.add(msg)
+                    try:
+                        bvh.write(msg.bvh_frame)
+                    except ValueError as exc:
+                        rt.drops += 1
+                        log.warning("recorder: pose %d not written to BVH: %s", msg.frame, exc)
+                    last_frame = msg.frame
+                else:
+                    rt.drops += 1
+                rt.meter.add((time.perf_counter() - t0) * 1e3)
+            elif isinstance(msg, Frame) and stream is not None:
+                stream.on_frame(msg, time.monotonic())
+            elif isinstance(msg, Background) and stream is not None:
+                stream.on_background(msg)
+            now = time.monotonic()
+            if stream is not None:
+                stream.flush_ready(now)
+                rt.extra["raw_frames"] = stream.frames_written
+            if now - last_snap >= SNAPSHOT_PERIOD_S:
+                poses.snapshot()
+                last_snap = now
+            rt.extra["poses"] = len(poses)
+            rt.publish_status()
+    finally:
+        for s in subs:
+            s.undeclare()
+        while True:     # what already arrived is still written
+            try:
+                msg = inbox.get_nowait()
+            except queue.Empty:
+                break
+            if isinstance(msg, Pose) and msg.frame > last_frame:
+                poses.add(msg)
+                bvh.write(msg.bvh_frame)
+                last_frame = msg.frame
+            elif isinstance(msg, Frame) and stream is not None:
+                stream.on_frame(msg, time.monotonic())
+        poses.snapshot()
+        bvh.close()
+        if stream is not None:
+            stream.close()
+        log.info("recorder: %d poses written to %s", len(poses), out_dir)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = base_parser(__doc__.splitlines()[0], "recorder")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--fps", type=float, default=None, help="frame rate for BVH/stream (default rig metadata or 30)")
+    p.add_argument("--raw", action="store_true", help="also record the raw multi-view stream (live sources)")
+    args = p.parse_args(argv)
+    setup_logging(args.log_level)
+    rig = load_rig(args)
+    fps = args.fps or float(rig.metadata.get("fps", 30.0))
+    keys = Keys(args.rig_name)
+    with open_session(args) as session:
+        rt = NodeRuntime(session, keys, args.node, "recorder")
+        rt.install_signal_handlers()
+        rt.publish_status("ready", force=True)
+        run_recorder(session, keys, rig, args.out, fps, args.raw, rt)
+        rt.publish_status("stopping", force=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,140 @@
+"""What every node process shares: common flags, signal handling, status reports.
+
+A node is ``main(args) -> int`` around a loop body of decode -> library call -> encode.
+``NodeRuntime`` owns the stop event (SIGINT/SIGTERM set it), the decoder with its drop
+counters and the once-a-second ``Status`` message.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import re
+import signal
+import statistics
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+from nodes.messages import Decoder, Keys, Status
+from nodes.transport import add_zenoh_args
+
+log = logging.getLogger(__name__)
+
+STATUS_PERIOD_S = 1.0       # how often a node reports its status
+RATE_WINDOW_S = 2.0         # fps / processing time are measured over this window
+
+
+def rig_name_for(rig_path: Path, rig) -> str:
+    """The rig's key-expression name: ``[metadata] name`` or the file stem, sanitised."""
+    raw = str(rig.metadata.get("name") or Path(rig_path).stem)
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", raw)[:64] or "rig"
+
+
+def base_parser(description: str, node_default: str) -> argparse.ArgumentParser:
+    """Flags shared by every node: rig, rig name, node name, Zenoh endpoints, logging."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--rig", type=Path, required=True, help="rig calibration TOML")
+    p.add_argument("--rig-name", default=None, help="key-expression name (default: from the rig)")
+    p.add_argument("--node", default=node_default, help="node name in status messages")
+    p.add_argument("--log-level", default="INFO")
+    add_zenoh_args(p)
+    return p
+
+
+def setup_logging(level: str) -> None:
+    logging.basicConfig(level=getattr(logging, str(level).upper(), logging.INFO),
+                        format="%(asctime)s %(levelname)s %(name)s[%(process)d]: %(message)s")
+
+
+def load_rig(args: argparse.Namespace):
+    """Read ``args.rig`` and fill ``args.rig_name``; returns the Rig."""
+    from mocap_rt.geometry.rig import read_rig
+
+    rig = read_rig(args.rig)
+    if not args.rig_name:
+        args.rig_name = rig_name_for(args.rig, rig)
+    return rig
+
+
+class RateMeter:
+    """Frames per second and median work time over a sliding window (monotonic clock)."""
+
+    def __init__(self, window_s: float = RATE_WINDOW_S) -> None:
+        self.window_s = window_s
+        self._events: deque[tuple[float, float]] = deque()
+        self.frames = 0
+
+    def add(self, work_ms: float, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        self._events.append((now, work_ms))
+        self.frames += 1
+        self._trim(now)
+
+    def _trim(self, now: float) -> None:
+        while self._events and now - self._events[0][0] > self.window_s:
+            self._events.popleft()
+
+    def fps(self, now: float | None = None) -> float:
+        now = time.monotonic() if now is None else now
+        self._trim(now)
+        if len(self._events) < 2:
+            return 0.0
+        span = now - self._events[0][0]
+        return (len(self._events) - 1) / span if span > 0 else 0.0
+
+    def median_ms(self) -> float:
+        return statistics.median(w for _, w in self._events) if self._events else 0.0
+
+
+class NodeRuntime:
+    """Stop event, decoder, rate meter and the periodic status message of one node."""
+
+    def __init__(self, session, keys: Keys, node: str, role: str) -> None:
+        self.session = session
+        self.keys = keys
+        self.node = node
+        self.role = role
+        self.stop = threading.Event()
+        self.decoder = Decoder(node)
+        self.meter = RateMeter()
+        self.drops = 0
+        self.extra: dict[str, float] = {}
+        self.state = "starting"
+        self._status_pub = session.declare_publisher(keys.status(node))
+        self._last_status = 0.0
+
+    def install_signal_handlers(self) -> None:
+        """SIGINT/SIGTERM end the loop cleanly (main thread only)."""
+        def _stop(signum, frame):  # noqa: ARG001
+            self.stop.set()
+        signal.signal(signal.SIGINT, _stop)
+        signal.signal(signal.SIGTERM, _stop)
+
+    def publish_status(self, state: str | None = None, force: bool = False) -> None:
+        """Send a Status message if ``STATUS_PERIOD_S`` passed (or ``force``)."""
+        now = time.monotonic()
+        if state:
+            self.state = state
+        if not force and now - self._last_status < STATUS_PERIOD_S:
+            return
+        self._last_status = now
+        t = os.times()
+        msg = Status(self.keys.rig, self.node, self.role, os.getpid(), time.monotonic_ns(), self.state,
+                     self.meter.fps(now), self.meter.median_ms(), self.meter.frames, self.drops,
+                     self.decoder.total_drops, t.user + t.system, dict(self.extra))
+        try:
+            self._status_pub.put(msg.to_msgpack())
+        except Exception as exc:  # a status report must never stop the node
+            log.warning("%s: status not sent: %s", self.node, exc)
+
+    def status_loop_thread(self) -> threading.Thread:
+        """A daemon thread sending status while the main loop may block."""
+        def run():
+            while not self.stop.wait(STATUS_PERIOD_S / 2):
+                self.publish_status()
+        th = threading.Thread(target=run, name=f"{self.node}-status", daemon=True)
+        th.start()
+        return th

@@ -1,0 +1,138 @@
+"""Sync node: the rig's frame trigger (seed digest A.6, the PC that sends the sync signal).
+
+Drift-free: frame ``k`` is due at ``t0 + k * period`` on the monotonic clock (an absolute
+schedule, never ``sleep(period)`` after the work). When the process falls more than one
+period behind (e.g. it was descheduled), the frames whose slot passed are skipped and
+counted as drops, so frame ids stay tied to time. ``--fps 0`` (``--speed max`` in the
+launcher) free-runs instead: the next trigger goes out as soon as the pose of the previous
+frame arrived (or after ``MAX_FREE_RUN_WAIT_S``).
+
+    python -m nodes.sync --rig RIG.toml --fps 30 [--frames N] [--listen ...] [--connect ...]
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+
+from nodes.messages import Keys, Pose, Trigger
+from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
+from nodes.transport import open_session
+
+log = logging.getLogger(__name__)
+
+SPIN_S = 0.0005               # final busy-wait before a trigger, for sub-ms punctuality
+MAX_FREE_RUN_WAIT_S = 0.25    # free-running: re-trigger if no pose came back by then
+
+
+class Schedule:
+    """Absolute frame schedule: ``due(k) = t0_ns + k * period_ns`` (integer ns, no drift)."""
+
+    def __init__(self, t0_ns: int, period_ns: int) -> None:
+        if period_ns <= 0:
+            raise ValueError(f"period_ns must be > 0, got {period_ns}")
+        self.t0_ns = t0_ns
+        self.period_ns = period_ns
+
+    def due(self, k: int) -> int:
+        return self.t0_ns + k * self.period_ns
+
+    def slot(self, now_ns: int) -> int:
+        """The latest frame index whose due time is <= now_ns."""
+        return max(0, (now_ns - self.t0_ns) // self.period_ns)
+
+
+def sleep_until(t_ns: int, stop: threading.Event) -> None:
+    """Sleep until monotonic ``t_ns`` (coarse wait on ``stop``, then a short spin)."""
+    while True:
+        left = (t_ns - time.monotonic_ns()) / 1e9
+        if left <= 0 or stop.is_set():
+            return
+        if left > SPIN_S:
+            stop.wait(left - SPIN_S)
+        # else spin
+
+
+def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame: int,
+             rt: NodeRuntime) -> int:
+    """Publish triggers until ``n_frames`` were sent or ``rt.stop`` is set; returns frames sent."""
+    pub = session.declare_publisher(keys.trigger, express=True)
+    sent = 0
+    if fps > 0:
+        sched = Schedule(time.monotonic_ns(), round(1e9 / fps))
+        k = 0
+        rt.publish_status("running", force=True)
+        while not rt.stop.is_set() and (n_frames is None or sent < n_frames):
+            due = sched.due(k)
+            sleep_until(due, rt.stop)
+            if rt.stop.is_set():
+                break
+            now = time.monotonic_ns()
+            msg = Trigger(keys.rig, start_frame + k, now, time.time_ns(), sched.period_ns)
+            pub.put(msg.to_msgpack())
+            sent += 1
+            rt.meter.add((now - due) / 1e6)
+            rt.extra["late_ms_last"] = (now - due) / 1e6
+            nxt = k + 1
+            slot = sched.slot(time.monotonic_ns())
+            if slot > nxt:             # fell behind by more than a period: skip those slots
+                rt.drops += slot - nxt
+                log.warning("sync: %d trigger slot(s) skipped (process was late)", slot - nxt)
+                nxt = slot
+            k = nxt
+            rt.publish_status()
+    else:
+        got = threading.Event()
+        last_frame = [-1]
+
+        def on_pose(sample) -> None:
+            msg = rt.decoder.decode(sample.payload, Pose)
+            if msg is not None and msg.frame >= last_frame[0]:
+                got.set()
+
+        with session.declare_subscriber(keys.pose, on_pose):
+            rt.publish_status("running", force=True)
+            k = 0
+            while not rt.stop.is_set() and (n_frames is None or sent < n_frames):
+                got.clear()
+                now = time.monotonic_ns()
+                last_frame[0] = start_frame + k
+                pub.put(Trigger(keys.rig, start_frame + k, now, time.time_ns(), 0).to_msgpack())
+                sent += 1
+                if not got.wait(MAX_FREE_RUN_WAIT_S):
+                    rt.drops += 1
+                rt.meter.add((time.monotonic_ns() - now) / 1e6)
+                k += 1
+                rt.publish_status()
+    rt.extra["frames_triggered"] = sent
+    rt.publish_status("stopping", force=True)
+    pub.undeclare()
+    return sent
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = base_parser(__doc__.splitlines()[0], "sync")
+    p.add_argument("--fps", type=float, default=None, help="trigger rate; 0 = free-run (default: rig metadata fps or 30)")
+    p.add_argument("--frames", type=int, default=None, help="stop after this many triggers")
+    p.add_argument("--start-frame", type=int, default=0)
+    p.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before the first trigger")
+    args = p.parse_args(argv)
+    setup_logging(args.log_level)
+    rig = load_rig(args)
+    fps = args.fps if args.fps is not None else float(rig.metadata.get("fps", 30.0))
+    keys = Keys(args.rig_name)
+    with open_session(args) as session:
+        rt = NodeRuntime(session, keys, args.node, "sync")
+        rt.install_signal_handlers()
+        rt.publish_status("ready", force=True)
+        if args.start_delay > 0:
+            rt.stop.wait(args.start_delay)
+        sent = run_sync(session, keys, fps, args.frames, args.start_frame, rt)
+        log.info("sync: %d triggers sent, %d slots skipped", sent, rt.drops)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
