@@ -1,0 +1,90 @@
+"""Joint centres for a whole trial: every joint of a segment definition, one method.
+
+Each segment is preprocessed once (rigid fit, step A; marker order, step D) and shared
+by the joints that use it.  Output joint centres are virtual markers named after the
+joints, in the trial's frame and units (metres).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap_rt.markers.io import MarkerData
+from mocap_rt.markers.joint_centres import METHODS, JointCentreFit, PreparedSegment, prepare_segment
+from mocap_rt.markers.segments import SegmentSet
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class BoneStats:
+    """Distance between two joint centres over the trial (metres); NaN frames ignored."""
+
+    joint_a: str
+    joint_b: str
+    mean_m: float
+    std_m: float
+    n_frames: int
+
+
+@dataclass(frozen=True)
+class TrialJointCentres:
+    """names : J joint names (definition order); centres : (F, J, 3) metres, trial frame, NaN
+    where not placed; fits : joint -> JointCentreFit; segments : segment -> PreparedSegment."""
+
+    names: tuple[str, ...]
+    centres: np.ndarray
+    fits: dict[str, JointCentreFit]
+    segments: dict[str, PreparedSegment]
+    method: str
+    rigid: bool
+
+    def as_marker_data(self, like: MarkerData) -> MarkerData:
+        """The joint centres as virtual markers with ``like``'s rate and first frame."""
+        return MarkerData(self.names, self.centres, like.rate_hz, like.first_frame, "", {"method": self.method})
+
+    def bone_lengths(self, segset: SegmentSet) -> list[BoneStats]:
+        """Mean/std distance for every pair of joints sharing a segment (each pair once)."""
+        out = []
+        idx = {n: i for i, n in enumerate(self.names)}
+        for a in self.names:
+            for b in segset.neighbours(a):
+                if idx[b] <= idx[a]:
+                    continue
+                d = np.linalg.norm(self.centres[:, idx[a]] - self.centres[:, idx[b]], axis=1)
+                d = d[np.isfinite(d)]
+                out.append(BoneStats(a, b, float(d.mean()) if d.size else np.nan,
+                                     float(d.std()) if d.size else np.nan, int(d.size)))
+        return out
+
+
+def joint_centres_for_trial(data: MarkerData, segset: SegmentSet, method: str = "patent", rigid: bool = True,
+                            similarity: bool = False) -> TrialJointCentres:
+    """Estimate every joint of ``segset`` from ``data``.
+
+    Raises SegmentError naming unknown markers, ValueError for an unknown method or a
+    segment whose markers are never seen together.
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown joint-centre method {method!r} (choose from {sorted(METHODS)})")
+    segset.check_markers(data.labels)
+    prepared: dict[str, PreparedSegment] = {}
+    for seg in segset.used_segments():
+        try:
+            prepared[seg] = prepare_segment(data.select(segset.segments[seg]), rigid, similarity)
+        except ValueError as exc:
+            raise ValueError(f"segment {seg!r} ({data.source}): {exc}") from exc
+    fits: dict[str, JointCentreFit] = {}
+    centres = np.full((data.n_frames, len(segset.joints), 3), np.nan)
+    for k, joint in enumerate(segset.joints):
+        try:
+            fit = METHODS[method](prepared[joint.parent].points, prepared[joint.child].points)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            log.warning("joint %s: %s failed (%s); left empty", joint.name, method, exc)
+            continue
+        fits[joint.name] = fit
+        centres[:, k] = fit.centre
+    return TrialJointCentres(segset.joint_names, centres, fits, prepared, method, rigid)
