@@ -164,7 +164,8 @@ class Camera:
         points_world : (N, 3) float64, metres, world frame.
         Returns ``(uv, in_front)``: uv (N, 2) float64 pixels with distortion applied,
         NaN for points behind the camera; in_front (N,) bool.
-        Matches ``cv2.projectPoints`` for points in front of the camera.
+        Matches ``cv2.projectPoints`` for points in front of the camera (cv2 ignores a
+        skew term ``K[0, 1]``; this projection applies the full K).
         """
         pc = self.to_camera(points_world)
         in_front = pc[:, 2] > MIN_DEPTH_M
@@ -180,12 +181,16 @@ class Camera:
         uv = _as_points(uv, 2, "uv")
         if uv.shape[0] == 0:
             return np.zeros((0, 2))
+        # Remove K (skew included, as project() applies it) to get distorted normalised xy.
+        ones = np.ones((uv.shape[0], 1))
+        xy = (np.hstack([uv, ones]) @ np.linalg.inv(self.K).T)[:, :2]
         if self.dist.size == 0 or not np.any(self.dist):
-            ones = np.ones((uv.shape[0], 1))
-            return (np.hstack([uv, ones]) @ np.linalg.inv(self.K).T)[:, :2]
-        # OpenCV's iterative undistortion; more iterations than the default for accuracy.
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-        out = cv2.undistortPoints(uv.reshape(-1, 1, 2), self.K, self.dist, None, None, None, crit)
+            return xy
+        # OpenCV's iterative undistortion with K = I (cv2 ignores K's skew, so it is removed
+        # above); more iterations than the default for accuracy.
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-15)
+        out = cv2.undistortPoints(np.ascontiguousarray(xy).reshape(-1, 1, 2), np.eye(3), self.dist,
+                                  None, None, None, crit)
         return out.reshape(-1, 2)
 
     def rays(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -88,7 +88,7 @@ def dlt_projection_matrix(X: np.ndarray, uv: np.ndarray) -> np.ndarray:
         raise CalibrationError(
             "3D points are coplanar or collinear (smallest/largest spread "
             f"{spread[2] / max(spread[0], 1e-300):.2e}); the DLT needs non-coplanar points")
-    if not np.linalg.norm(uv - uv.mean(axis=0), axis=1).max() > 0:
+    if not np.ptp(uv, axis=0).max() > 0:
         raise CalibrationError("all pixels are identical: degenerate correspondences")
     T3 = _similarity(X)
     T2 = _similarity(uv)

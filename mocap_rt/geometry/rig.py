@@ -170,6 +170,8 @@ def _camera_from_table(key: str, table: dict, where: str) -> Camera:
             raise ValueError(f"matrix must be 3x3, got shape {matrix.shape}")
         if not np.all(np.isfinite(rot)):
             raise ValueError("rotation has NaN or inf")
+        if table.get("fisheye", False) not in (False, 0):
+            raise ValueError("fisheye cameras are not supported (the camera model is pinhole + OpenCV distortion)")
         extra = {k: v for k, v in table.items() if k not in _CAMERA_KEYS}
         return Camera(
             name=str(table.get("name", key)),
