@@ -1,0 +1,174 @@
+"""Real-time analytic IK from the six 3D cues (seed digest A.5), plus the body's pan.
+
+Input: ``cues (6, 3)`` metres, world, in ``CUE_NAMES`` order (head, hand_l, hand_r,
+foot_l, foot_r, torso). Output: a pose of the ``BodyModel`` (root position and
+angles) whose hands, feet and head lie on the cues when they are reachable.
+
+* Torso orientation (A.5): the body axis is parallel to head - torso.
+* Pan (not in the paper, which fixed it): the body's right axis is estimated from the
+  left->right vectors of the feet and of the hands (feet weighted more), made
+  perpendicular to the body axis; when the torso moves faster than
+  ``walk_speed_mps`` the walking direction (facing = velocity) is blended in. The
+  caller passes the previous right axis so the estimate can be smoothed.
+* Limbs (A.5): a goal is a direction and a clamped distance: the limb always points at
+  its cue; the distance is clamped into ``[|L1 - L2|, L1 + L2]`` (fully stretched
+  outside the reachable range). The elbow/knee lies in the plane of the limb and a
+  pole direction; ``elbow_raise_deg`` / ``knee_open_deg`` rotate that pole about the
+  limb axis (the paper's experimental constants for Rz^l1).
+* The closed-form angles of eq. (6) are obtained by building each bone frame (Z along
+  the bone, X the flexion axis normal to the limb plane) and reading the model's
+  X-Y-Z angles between adjacent frames (B.5), so the result is exact for any preset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap_rt.body.kinematics import angles_from_frames, forward_kinematics
+from mocap_rt.body.skeleton import J, N_JOINTS, BodyModel
+
+C_HEAD, C_HAND_L, C_HAND_R, C_FOOT_L, C_FOOT_R, C_TORSO = range(6)
+# Relative reach below which a limb is treated as folded (avoids the |L1 - L2| singularity).
+MIN_REACH_FRAC = 0.05
+
+
+@dataclass(frozen=True)
+class AnalyticConfig:
+    """Parameters of the analytic IK (angles in degrees, speeds in m/s)."""
+
+    elbow_raise_deg: float = 20.0   # pole of the elbow rotated outwards from straight back
+    knee_open_deg: float = 10.0     # pole of the knee rotated outwards from straight forward
+    feet_weight: float = 1.0        # weight of the feet's left->right vector for the pan
+    hands_weight: float = 0.3       # weight of the hands' left->right vector
+    walk_speed_mps: float = 0.4     # above this torso speed the walking direction counts
+    walk_weight: float = 1.0        # weight of the walking direction at twice that speed
+    pan_smoothing: float = 0.5      # 0 = no memory, -> 1 = keep the previous pan
+
+
+def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 1e-9 and np.isfinite(n) else fallback
+
+
+def body_axes(cues: np.ndarray, prev_right: np.ndarray | None = None, velocity: np.ndarray | None = None,
+              config: AnalyticConfig = AnalyticConfig()) -> np.ndarray:
+    """(3, 3) body frame in the world, columns (right, forward, up) (A.5 + pan estimate).
+
+    cues : (6, 3) metres, world; missing cues NaN (then the previous/default axes are used).
+    prev_right : (3,) previous right axis, for smoothing. velocity : (3,) torso m/s.
+    """
+    up = _unit(cues[C_HEAD] - cues[C_TORSO], np.array([0.0, 0, 1]))
+    prev = np.array([1.0, 0, 0]) if prev_right is None else np.asarray(prev_right, dtype=np.float64)
+    v = np.zeros(3)
+    feet = cues[C_FOOT_R] - cues[C_FOOT_L]
+    hands = cues[C_HAND_R] - cues[C_HAND_L]
+    if np.isfinite(feet).all():
+        v += config.feet_weight * feet / max(np.linalg.norm(feet), 0.05)
+    if np.isfinite(hands).all():
+        v += config.hands_weight * hands / max(np.linalg.norm(hands), 0.05)
+    if velocity is not None and np.isfinite(velocity).all():
+        vh = velocity - up * (velocity @ up)
+        speed = float(np.linalg.norm(vh))
+        if speed > config.walk_speed_mps:
+            w = config.walk_weight * min(1.0, (speed - config.walk_speed_mps) / config.walk_speed_mps)
+            v += w * np.cross(vh / speed, up)  # facing = velocity: right = forward x up
+    v = v - up * (v @ up)
+    right = _unit(v, prev)
+    if prev_right is not None and config.pan_smoothing > 0:
+        right = _unit((1 - config.pan_smoothing) * right + config.pan_smoothing * prev, right)
+    right = _unit(right - up * (right @ up), np.cross(np.array([0.0, 1, 0]), up))
+    forward = np.cross(up, right)
+    return np.column_stack([right, forward, up])
+
+
+def pan_angle(axes: np.ndarray) -> float:
+    """Heading (radians) of the body's forward axis about world +Z; 0 = facing +Y."""
+    f = axes[:, 1]
+    return float(np.arctan2(-f[0], f[1]))
+
+
+def _two_link(root: np.ndarray, goal: np.ndarray, L1: float, L2: float,
+              pole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Middle joint and reached end of a 2-link chain (A.5 direction + clamped distance).
+
+    The end always lies on the ray root -> goal, at the goal's distance clamped into
+    [|L1 - L2|, L1 + L2]; the middle joint bends towards ``pole`` (3,) (unit).
+    Returns (middle (3,), end (3,)) metres and the unit vectors u (root -> end) and w
+    (the bending direction, perpendicular to u), both (3,).
+    """
+    d = goal - root
+    dist = float(np.linalg.norm(d))
+    u = _unit(d, -pole if abs(pole[2]) < 0.9 else np.array([0.0, 0, -1]))
+    lo = max(abs(L1 - L2), MIN_REACH_FRAC * (L1 + L2))
+    hi = (L1 + L2) * (1 - 1e-9)
+    L = min(max(dist, lo), hi)
+    cos_a = np.clip((L1 * L1 + L * L - L2 * L2) / (2 * L1 * L), -1.0, 1.0)  # law of cosines at the root
+    w = pole - u * (pole @ u)
+    w = _unit(w, _unit(np.cross(u, np.array([1.0, 0, 0])), np.array([0.0, 1, 0])))
+    mid = root + L1 * (cos_a * u + np.sqrt(1 - cos_a * cos_a) * w)
+    return mid, root + L * u, u, w
+
+
+def _rot_about(axis: np.ndarray, angle: float, v: np.ndarray) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    return v * np.cos(angle) + np.cross(axis, v) * np.sin(angle) + axis * (axis @ v) * (1 - np.cos(angle))
+
+
+def _frame(z: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
+    z = _unit(z, np.array([0.0, 0, -1]))
+    x = x_hint - z * (x_hint @ z)
+    x = _unit(x, _unit(np.cross(np.array([0.0, 1, 0]), z), np.array([1.0, 0, 0])))
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
+                  config: AnalyticConfig = AnalyticConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """Pose from the six cues: ``(root_pos (3,), angles (J, 3) radians)``.
+
+    cues : (6, 3) metres, world, all finite (the tracker fills gaps from its filter).
+    axes : (3, 3) body frame from ``body_axes`` (columns right, forward, up).
+    """
+    L = model.lengths
+    R = np.empty((N_JOINTS, 3, 3))
+    right, forward, up = axes[:, 0], axes[:, 1], axes[:, 2]
+    torso = cues[C_TORSO]
+    pelvis = torso - up * (L.trunk_m / 2)
+    neck = torso + up * (L.trunk_m / 2)
+    for j in ("pelvis", "torso", "neck", "head"):
+        R[J[j]] = axes
+    foot_rest = model.rest_world[J["ankle_r"]][:, 2]            # ankle -> foot at rest (body frame)
+    for side, sx, hand_c, foot_c in (("l", -1.0, C_HAND_L, C_FOOT_L), ("r", 1.0, C_HAND_R, C_FOOT_R)):
+        # arm: shoulder -> elbow -> hand (hand collinear with the forearm at zero wrist angles)
+        shoulder = neck + right * (sx * L.shoulder_half_width_m)
+        pole = _rot_about(up, -sx * np.radians(config.elbow_raise_deg), -forward)
+        elbow, hand, u, w = _two_link(shoulder, cues[hand_c], L.upper_arm_m, L.forearm_m + L.hand_m, pole)
+        upper, fore = elbow - shoulder, hand - elbow
+        x = np.cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
+        R[J[f"shoulder_{side}"]] = _frame(upper, x)
+        R[J[f"elbow_{side}"]] = R[J[f"wrist_{side}"]] = R[J[f"hand_{side}"]] = _frame(fore, x)
+        # leg: hip -> knee -> foot centre; the foot is rigid on the shank (paper model)
+        hip = pelvis + right * (sx * L.hip_half_width_m)
+        shank_v = np.array([0.0, 0, -L.shank_m])                  # knee -> ankle, body frame at rest
+        foot_v = L.foot_m * foot_rest                             # ankle -> foot, body frame at rest
+        eff = shank_v + foot_v                                    # knee -> foot centre
+        L2 = float(np.linalg.norm(eff))
+        gamma = np.arctan2(eff[1], -eff[2])                       # foot centre ahead of the shank axis
+        pole = _rot_about(up, sx * np.radians(config.knee_open_deg), forward)
+        knee, foot, u, w = _two_link(hip, cues[foot_c], L.thigh_m, L2, pole)
+        n = np.cross(u, w)  # flexion axis (the body's right for a straight standing leg)
+        u2 = _unit(foot - knee, -up)
+        beta = np.arctan2(foot_rest[1], -foot_rest[2])           # foot direction ahead of the shank
+        shank_dir = _rot_about(n, -gamma, u2)
+        R[J[f"hip_{side}"]] = _frame(knee - hip, n)
+        R[J[f"knee_{side}"]] = _frame(shank_dir, n)
+        R[J[f"ankle_{side}"]] = R[J[f"foot_{side}"]] = _frame(_rot_about(n, beta - gamma, u2), n)
+    angles = angles_from_frames(model, R)
+    angles = np.where(model.dof, angles, 0.0)
+    return pelvis, angles
+
+
+def pose_joints(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """(J, 3) joint positions, metres, world."""
+    return forward_kinematics(model, root_pos, angles)[0]

@@ -1,0 +1,57 @@
+"""The body model as a BVH hierarchy, and a pose as one BVH motion row.
+
+The file is **Y up, metres** (what Blender's BVH importer expects with scale 1):
+``p_bvh = C @ p_world`` with ``C`` mapping world (X, Y, Z) to BVH (X, Z, -Y). Joints are
+``JOINT_NAMES`` (parents first); the pelvis has 6 channels, every other joint
+``Xrotation Yrotation Zrotation`` (intrinsic, ``R = Rx Ry Rz``), degrees. BVH joint frames
+are parallel to the BVH world at rest (zero rotations = the model's rest pose); the
+head, hands and feet carry a short End Site along their bone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.skeleton import N_JOINTS, BodyModel
+from mocap_rt.io.bvh import BvhJoint, BvhSkeleton
+from mocap_rt.names import JOINT_NAMES
+
+WORLD_TO_BVH = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
+ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
+JOINT_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
+END_SITE_M = 0.05  # length of the End Site stubs
+
+
+def bvh_skeleton(model: BodyModel) -> BvhSkeleton:
+    """The model's hierarchy (offsets from the rest pose, metres, BVH axes)."""
+    C = WORLD_TO_BVH
+    joints = []
+    children = {j: model.children(j) for j in range(N_JOINTS)}
+    for j, name in enumerate(JOINT_NAMES):
+        p = int(model.parents[j])
+        off = np.zeros(3) if p < 0 else C @ (model.rest_world[p] @ model.offsets[j])
+        end = None
+        if not children[j]:
+            end = C @ (model.rest_world[j] @ np.array([0.0, 0, END_SITE_M]))
+        joints.append(BvhJoint(name, p, off, ROOT_CHANNELS if p < 0 else JOINT_CHANNELS, end))
+    return BvhSkeleton(tuple(joints))
+
+
+def bvh_frame(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """(n_channels,) float64 motion row for the pose (root metres, rotations degrees)."""
+    C = WORLD_TO_BVH
+    _, rot = forward_kinematics(model, root_pos, angles)
+    B = C @ rot @ np.transpose(model.rest_world, (0, 2, 1)) @ C.T   # (J, 3, 3) BVH-world rotations
+    local = np.empty_like(B)
+    local[0] = B[0]
+    par = model.parents[1:]
+    local[1:] = np.transpose(B[par], (0, 2, 1)) @ B[1:]
+    eul = Rotation.from_matrix(local).as_euler("XYZ", degrees=True)   # (J, 3)
+    return np.concatenate([C @ np.asarray(root_pos, dtype=np.float64), eul.ravel()])
+
+
+def bvh_frames(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """(F, n_channels) rows for poses ``root_pos (F, 3)``, ``angles (F, J, 3)``."""
+    return np.array([bvh_frame(model, r, a) for r, a in zip(root_pos, angles)])
