@@ -229,7 +229,7 @@ def write_trc(path: str | Path, data: MarkerData, units: str = "mm") -> None:
     values = data.positions / scale
     times = data.times_s
     for f in range(n_frames):
-        cells = ["" if not np.isfinite(v) else repr(float(v)) for v in values[f].ravel()]
+        cells = ["" if not np.isfinite(v) else f"{v:.6f}" for v in values[f].ravel()]
         out.append(f"{data.first_frame + f}\t{times[f]:.6f}\t" + "\t".join(cells))
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text("\n".join(out) + "\n", encoding="utf-8")

@@ -144,3 +144,14 @@ def dumps_segments(segset: SegmentSet) -> str:
     for j in segset.joints:
         out += [f"[joints.{j.name}]", f'parent = "{j.parent}"', f'child = "{j.child}"', ""]
     return "\n".join(out)
+
+
+def shipped_segments_path(name: str) -> Path:
+    """Path of an example segment set shipped as package data (``mocap_rt/data/segments_*.toml``).
+
+    name : e.g. "biobuddy_qualisys", "biobuddy_vicon", "opensim_gait".
+    """
+    path = Path(__file__).resolve().parents[1] / "data" / f"segments_{name}.toml"
+    if not path.is_file():
+        raise FileNotFoundError(f"no shipped segment set {name!r} ({path})")
+    return path

@@ -14,6 +14,7 @@ import numpy as np
 
 from mocap_rt.markers.io import MarkerData
 from mocap_rt.markers.joint_centres import METHODS, JointCentreFit, PreparedSegment, prepare_segment
+from mocap_rt.markers.rigid import absolute_orientation
 from mocap_rt.markers.segments import SegmentSet
 
 log = logging.getLogger(__name__)
@@ -41,6 +42,7 @@ class TrialJointCentres:
     segments: dict[str, PreparedSegment]
     method: str
     rigid: bool
+    rom_deg: dict[str, float]
 
     def as_marker_data(self, like: MarkerData) -> MarkerData:
         """The joint centres as virtual markers with ``like``'s rate and first frame."""
@@ -61,6 +63,31 @@ class TrialJointCentres:
         return out
 
 
+LOW_ROM_DEG = 20.0  # below this relative rotation the centre is poorly determined
+
+
+def relative_rotation_range_deg(parent: np.ndarray, child: np.ndarray) -> float:
+    """95th percentile angle (deg) of the child's rotation relative to the parent, about its mean.
+
+    parent, child : (F, k, 3) markers.  A joint that hardly moves (say < 20 deg) has no
+    well-defined functional centre: every method's answer is then dominated by noise.
+    """
+    _, rp, _ = absolute_orientation(parent, parent[_first_full(parent)])
+    _, rc, _ = absolute_orientation(child, child[_first_full(child)])
+    ok = np.isfinite(rp[:, 0, 0]) & np.isfinite(rc[:, 0, 0])
+    if ok.sum() < 2:
+        return 0.0
+    from scipy.spatial.transform import Rotation
+
+    rel = Rotation.from_matrix(np.einsum("fba,fbc->fac", rp[ok], rc[ok]))
+    return float(np.degrees(np.percentile((rel * rel.mean().inv()).magnitude(), 95)))
+
+
+def _first_full(points: np.ndarray) -> int:
+    full = np.flatnonzero(np.all(np.isfinite(points), axis=(1, 2)))
+    return int(full[0]) if full.size else int(np.argmax(np.isfinite(points[..., 0]).sum(axis=1)))
+
+
 def joint_centres_for_trial(data: MarkerData, segset: SegmentSet, method: str = "patent", rigid: bool = True,
                             similarity: bool = False) -> TrialJointCentres:
     """Estimate every joint of ``segset`` from ``data``.
@@ -78,6 +105,7 @@ def joint_centres_for_trial(data: MarkerData, segset: SegmentSet, method: str = 
         except ValueError as exc:
             raise ValueError(f"segment {seg!r} ({data.source}): {exc}") from exc
     fits: dict[str, JointCentreFit] = {}
+    rom: dict[str, float] = {}
     centres = np.full((data.n_frames, len(segset.joints), 3), np.nan)
     for k, joint in enumerate(segset.joints):
         try:
@@ -87,4 +115,8 @@ def joint_centres_for_trial(data: MarkerData, segset: SegmentSet, method: str = 
             continue
         fits[joint.name] = fit
         centres[:, k] = fit.centre
-    return TrialJointCentres(segset.joint_names, centres, fits, prepared, method, rigid)
+        rom[joint.name] = relative_rotation_range_deg(prepared[joint.parent].points, prepared[joint.child].points)
+        if rom[joint.name] < LOW_ROM_DEG:
+            log.warning("joint %s moves only %.0f deg in this trial: its centre is poorly determined",
+                        joint.name, rom[joint.name])
+    return TrialJointCentres(segset.joint_names, centres, fits, prepared, method, rigid, rom)
