@@ -1,0 +1,171 @@
+"""Numba kernels of the blob stage (seed digest A.2): labelling moments and the deformable ellipse.
+
+All coordinates are pixels of the array passed in (OpenCV convention: pixel (x, y) has its
+centre at integer (x, y)). ``skin`` maps are float32 in [0, 1] (1 = pixel of the colour).
+Each kernel has a plain NumPy reference in ``tests/perception`` that it is tested against.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+# Moment vector layout: n, sum x, sum y, sum xx, sum xy, sum yy.
+N_MOMENTS = 6
+
+
+@numba.njit(cache=True, nogil=True)
+def label_moments(skin, x0, y0, x1, y1, centers, gate2, sums):  # pragma: no cover - numba
+    """Initial labelling (A.2): each colour pixel to the nearest predicted centre within its gate.
+
+    skin (h, w) float32, pixels with value >= 0.5 count; scan the box [x0, x1) x [y0, y1).
+    centers (K, 2) float64 pixels (NaN = not tracked), gate2 (K,) squared gate radius px^2.
+    sums (K, 6) float64 is overwritten with the moments of each blob's pixels.
+    """
+    K = centers.shape[0]
+    for k in range(K):
+        for j in range(N_MOMENTS):
+            sums[k, j] = 0.0
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            if skin[y, x] < 0.5:
+                continue
+            best = -1
+            bd = 1e300
+            for k in range(K):
+                dx = x - centers[k, 0]
+                dy = y - centers[k, 1]
+                d = dx * dx + dy * dy
+                if d < gate2[k] and d < bd:
+                    bd = d
+                    best = k
+            if best >= 0:
+                sums[best, 0] += 1.0
+                sums[best, 1] += x
+                sums[best, 2] += y
+                sums[best, 3] += x * x
+                sums[best, 4] += x * y
+                sums[best, 5] += y * y
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear(img, x, y):  # pragma: no cover - numba
+    h, w = img.shape
+    if x < 0.0 or y < 0.0 or x > w - 1.0 or y > h - 1.0:
+        return 0.0
+    xi = min(int(x), w - 2) if w > 1 else 0
+    yi = min(int(y), h - 2) if h > 1 else 0
+    fx = x - xi
+    fy = y - yi
+    a = img[yi, xi] * (1.0 - fx) + img[yi, xi + 1] * fx if w > 1 else img[yi, xi]
+    b = img[yi + 1, xi] * (1.0 - fx) + img[yi + 1, xi + 1] * fx if h > 1 and w > 1 else a
+    return a * (1.0 - fy) + b * fy
+
+
+@numba.njit(cache=True, nogil=True)
+def ellipse_frame(cov):  # pragma: no cover - numba
+    """Principal axes of a 2x2 covariance: (sd1, sd2, c, s) with axis 1 = (c, s)."""
+    a = cov[0, 0]
+    b = cov[0, 1]
+    d = cov[1, 1]
+    tr = 0.5 * (a + d)
+    disc = math.sqrt(max(0.25 * (a - d) * (a - d) + b * b, 0.0))
+    l1 = max(tr + disc, 1e-6)
+    l2 = max(tr - disc, 1e-6)
+    ang = 0.5 * math.atan2(2.0 * b, a - d)
+    return math.sqrt(l1), math.sqrt(l2), math.cos(ang), math.sin(ang)
+
+
+@numba.njit(cache=True, nogil=True)
+def deform_ellipse(skin, mean, cov, scale, n_pts, search_frac, search_min_px, win_half_px, contour):  # pragma: no cover
+    """Deformable-ellipse boundary (A.2, eq. 3-4) and the centroid of the region it encloses.
+
+    The initial ellipse is ``{mean + scale * Sigma^(1/2) u, |u| = 1}`` (scale 2 = the edge of a
+    uniform ellipse). At each of ``n_pts`` perimeter points the boundary offset ``d`` along the
+    outward normal maximises J = 1 / |N_W/2 - sum_W p + eps|: the window W (length
+    2*win_half_px along the normal, 3 px wide, bilinear samples) is half colour. The crossing
+    of ``sum_W p - N_W/2`` nearest the initial ellipse is interpolated to sub-pixel. Search
+    range +-max(search_min_px, search_frac * local radius).
+
+    contour (n_pts, 2) float64 receives the deformed boundary. Returns (cx, cy, area_px2),
+    the centroid and area of the polygon (the region inside the deformed contour).
+    """
+    sd1, sd2, c, s = ellipse_frame(cov)
+    mx = mean[0]
+    my = mean[1]
+    L = 2 * win_half_px                      # window samples along the normal
+    nw_half = 0.5 * 3.0 * L                  # N_W / 2
+    for k in range(n_pts):
+        t = 2.0 * math.pi * k / n_pts
+        u1 = math.cos(t)
+        u2 = math.sin(t)
+        # point on the ellipse, in image coordinates
+        px = mx + scale * (sd1 * u1 * c - sd2 * u2 * s)
+        py = my + scale * (sd1 * u1 * s + sd2 * u2 * c)
+        # outward normal = Sigma^-1 (p - mean) direction
+        n1 = u1 / sd1
+        n2 = u2 / sd2
+        nx = n1 * c - n2 * s
+        ny = n1 * s + n2 * c
+        nn = math.sqrt(nx * nx + ny * ny)
+        nx /= nn
+        ny /= nn
+        tx = -ny
+        ty = nx
+        r_loc = math.sqrt((px - mx) ** 2 + (py - my) ** 2)
+        D = int(max(search_min_px, search_frac * r_loc) + 0.5)
+        D = min(D, int(0.8 * r_loc) + win_half_px) if r_loc > 1.0 else D
+        # profile along the normal: samples at offsets q = -D - win_half + 0.5 ... D + win_half - 0.5
+        n_prof = 2 * D + L
+        prof = np.empty(n_prof)
+        for i in range(n_prof):
+            q = -D - win_half_px + 0.5 + i
+            sx = px + q * nx
+            sy = py + q * ny
+            prof[i] = (_bilinear(skin, sx - tx, sy - ty) + _bilinear(skin, sx, sy)
+                       + _bilinear(skin, sx + tx, sy + ty))
+        # window sums for d = -D..D: samples i = d + D .. d + D + L - 1
+        f = np.empty(2 * D + 1)
+        acc = 0.0
+        for i in range(L):
+            acc += prof[i]
+        f[0] = acc - nw_half
+        for j in range(1, 2 * D + 1):
+            acc += prof[j + L - 1] - prof[j - 1]
+            f[j] = acc - nw_half
+        # crossing from colour (f > 0) to not (f <= 0) nearest d = 0
+        best = 1e9
+        dstar = 0.0
+        found = False
+        for j in range(2 * D):
+            if f[j] > 0.0 and f[j + 1] <= 0.0:
+                dj = (j - D) + f[j] / (f[j] - f[j + 1])
+                if abs(dj) < abs(best):
+                    best = dj
+                    dstar = dj
+                    found = True
+        if not found:
+            # no half-colour window: all colour -> grow, none -> shrink (argmax J at the end)
+            dstar = float(D) if f[D] > 0.0 else -float(D)
+        if dstar < -0.9 * r_loc:
+            dstar = -0.9 * r_loc
+        contour[k, 0] = px + dstar * nx
+        contour[k, 1] = py + dstar * ny
+    # polygon centroid and area (shoelace)
+    a2 = 0.0
+    cx = 0.0
+    cy = 0.0
+    for k in range(n_pts):
+        x0 = contour[k, 0] - mx
+        y0 = contour[k, 1] - my
+        x1 = contour[(k + 1) % n_pts, 0] - mx
+        y1 = contour[(k + 1) % n_pts, 1] - my
+        cr = x0 * y1 - x1 * y0
+        a2 += cr
+        cx += (x0 + x1) * cr
+        cy += (y0 + y1) * cr
+    if abs(a2) < 1e-9:
+        return mx, my, 0.0
+    return mx + cx / (3.0 * a2), my + cy / (3.0 * a2), 0.5 * abs(a2)

@@ -1,0 +1,267 @@
+"""Colour-blob tracking in one camera (seed digest A.2, A.4).
+
+One ``BlobTracker`` follows the blobs of one colour model: the skin tracker follows head,
+hand_l and hand_r, the shoe tracker foot_l and foot_r. Per frame:
+
+1. **Initial labelling** (A.2): every colour pixel inside the person box goes to the blob
+   whose predicted centre is nearest (within a gate); the pixels give the Gaussian blob
+   (mean mu', covariance Sigma').
+2. **Deformable ellipse** (A.2, eq. 3-4): for a blob predicted visible the ellipse boundary
+   is moved along its normals to where a window is half colour (maximum separability J);
+   the cue is the centroid of the region inside the deformed contour. A blob predicted
+   occluded (``CuePrediction.visible`` False, A.4) keeps its initial ellipse: the cue is mu'.
+3. **Loss and re-acquisition**: a blob with too few pixels is lost for this frame; its 2D
+   track coasts on constant velocity for ``max_coast_frames``. Lost or never-seen blobs are
+   (re)acquired from the connected colour regions no tracked blob claims: the head is the
+   region nearest the top of the silhouette, hands/feet the largest remaining regions.
+
+Identity (left/right) through crossings comes from the predictions: while two hands
+overlap both are labelled from the same region by proximity, and they separate again
+along their predicted paths. With the fusion's 3D prediction (A.4) identities are those of
+the body model; with the 2D-only prediction a cold start assumes the person faces the
+camera (image-left = person's right), which the 3D tracker later corrects.
+
+Coordinates: pixels of the full image unless a name says ``roi``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from mocap_rt.perception.background import component_stats
+from mocap_rt.perception.blob_kernels import N_MOMENTS, deform_ellipse, label_moments
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class BlobParams:
+    """Tuning of one colour-blob tracker (pixels at the camera's resolution)."""
+
+    min_area_px: float = 6.0            # fewer labelled pixels: blob lost this frame
+    acquire_min_area_px: float = 10.0   # smallest region a lost blob is re-acquired from
+    gate_radius_factor: float = 2.0     # labelling gate = factor * blob radius ...
+    gate_min_px: float = 8.0            # ... but at least this
+    gate_speed_factor: float = 1.0      # ... plus this times the 2D speed (px/frame)
+    max_coast_frames: int = 3           # coast a lost blob this long before re-acquiring
+    ellipse_scale: float = 2.0          # initial ellipse at 2 sigma (edge of a uniform ellipse)
+    n_contour_pts: int = 20             # perimeter points of the deformable ellipse
+    search_frac: float = 0.4            # boundary search range, fraction of the local radius
+    search_min_px: float = 3.0          # ... at least this
+    window_half_px: int = 2             # J(p) window half length along the normal
+    max_refine_shift_frac: float = 0.6  # deformed centroid may move this * radius from mu'
+    facing_camera: bool = True          # cold-start convention: image-left = person's right
+
+
+@dataclass
+class BlobFrame:
+    """One frame of a tracker: arrays over the tracker's K cues, full-image pixels."""
+
+    xy: np.ndarray          # (K, 2) float64, NaN where lost
+    cov: np.ndarray         # (K, 2, 2) float64 px^2, Gaussian blob covariance
+    area: np.ndarray        # (K,) float64 px^2 (deformed region, or pixel count if occluded)
+    confidence: np.ndarray  # (K,) float64 in [0, 1]
+    contours: list          # K entries: (n_pts, 2) float64 deformed contour, or None
+
+
+def _moments_to_gaussian(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Moment row (6,) -> mean (2,), covariance (2, 2) of the pixels (+1/12 px^2 pixel extent)."""
+    n = s[0]
+    m = np.array([s[1] / n, s[2] / n])
+    cxx = s[3] / n - m[0] * m[0] + 1.0 / 12.0
+    cxy = s[4] / n - m[0] * m[1]
+    cyy = s[5] / n - m[1] * m[1] + 1.0 / 12.0
+    return m, np.array([[cxx, cxy], [cxy, cyy]])
+
+
+class BlobTracker:
+    """Tracks the K blobs ``roles`` of one colour in one camera."""
+
+    def __init__(self, roles: tuple[str, ...], params: BlobParams = BlobParams()) -> None:
+        self.roles = tuple(roles)
+        self.params = params
+        K = len(self.roles)
+        self._xy = np.full((K, 2), np.nan)       # last measured position (full image px)
+        self._vel = np.zeros((K, 2))             # px / frame
+        self._radius = np.full(K, np.nan)        # px
+        self._coast = np.zeros(K, np.int64)      # frames since last measurement
+        self._sums = np.zeros((K, N_MOMENTS))
+        self._contour = np.zeros((params.n_contour_pts, 2))
+
+    def reset(self) -> None:
+        self.__init__(self.roles, self.params)
+
+    def predict_2d(self) -> tuple[np.ndarray, np.ndarray]:
+        """Constant-velocity 2D prediction: (xy (K, 2) NaN where untracked, radius (K,))."""
+        xy = self._xy + self._vel * (1 + self._coast)[:, None]
+        xy[self._coast > self.params.max_coast_frames] = np.nan
+        return xy, self._radius.copy()
+
+    # ------------------------------------------------------------------ per frame
+    def step(self, skin_roi: np.ndarray, roi_xy: tuple[int, int], person_box_roi: tuple[int, int, int, int],
+             top_roi: tuple[float, float] | None, pred_xy: np.ndarray | None = None,
+             pred_visible: np.ndarray | None = None, pred_radius: np.ndarray | None = None) -> BlobFrame:
+        """Track one frame.
+
+        skin_roi : (h, w) float32 colour map of the region of interest, 1 = colour pixel
+            (already restricted to the silhouette).
+        roi_xy : (x, y) of the ROI's top-left pixel in the image.
+        person_box_roi : (x, y, w, h) of the silhouette in ROI pixels.
+        top_roi : (x, y) ROI pixels of the silhouette's top (head acquisition), or None.
+        pred_xy, pred_visible, pred_radius : (K, 2), (K,), (K,) prediction for this frame in
+            image pixels (from fusion, A.4); None = use the tracker's own 2D prediction.
+        """
+        p = self.params
+        K = len(self.roles)
+        ox, oy = roi_xy
+        own_xy, own_r = self.predict_2d()
+        if pred_xy is None:
+            centers, radius, visible = own_xy, own_r, np.ones(K, bool)
+        else:
+            centers = np.where(np.isfinite(pred_xy), pred_xy, own_xy)
+            radius = np.where(np.isfinite(pred_radius), pred_radius, own_r) if pred_radius is not None else own_r
+            visible = np.ones(K, bool) if pred_visible is None else np.asarray(pred_visible, bool)
+        centers = centers - (ox, oy)                                          # (K, 2) ROI px
+        speed = np.hypot(*self._vel.T)
+        gate = np.maximum(p.gate_min_px, p.gate_radius_factor * np.nan_to_num(radius, nan=0.0))
+        gate = gate + p.gate_speed_factor * speed
+
+        bx, by, bw, bh = person_box_roi
+        out = BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K),
+                        [None] * K)
+        if bw <= 0 or bh <= 0:
+            self._mark_lost(np.ones(K, bool))
+            return out
+        box = (bx, by, bx + bw, by + bh)
+        found = self._label(skin_roi, box, centers, gate)
+        acquired = np.zeros(K, bool)
+        missing = ~found
+        if missing.any():
+            acquired = self._acquire(skin_roi, box, centers, found, missing, top_roi)
+            if acquired.any():
+                centers = np.where(acquired[:, None], self._acq_centers, centers)
+                gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
+                found = self._label(skin_roi, box, centers, gate)
+
+        for k in range(K):
+            if not found[k]:
+                continue
+            mean, cov = _moments_to_gaussian(self._sums[k])
+            n = self._sums[k, 0]
+            xy, area = mean, n
+            contour = None
+            r_blob = math.sqrt(n / math.pi)
+            if visible[k]:
+                cx, cy, a = deform_ellipse(skin_roi, mean, cov, p.ellipse_scale, p.n_contour_pts, p.search_frac,
+                                           p.search_min_px, p.window_half_px, self._contour)
+                if a > 0 and math.hypot(cx - mean[0], cy - mean[1]) <= p.max_refine_shift_frac * r_blob + 0.5:
+                    xy, area = np.array([cx, cy]), a
+                    contour = self._contour + (ox, oy)
+            out.xy[k] = xy + (ox, oy)
+            out.cov[k] = cov
+            out.area[k] = area
+            conf = min(1.0, n / (4.0 * p.min_area_px))
+            out.confidence[k] = conf * (1.0 if visible[k] else 0.5) * (0.5 if acquired[k] else 1.0)
+            out.contours[k] = contour
+        self._update_state(out, found)
+        return out
+
+    # ------------------------------------------------------------------ internals
+    def _label(self, skin_roi, box, centers, gate) -> np.ndarray:
+        x0, y0, x1, y1 = box
+        label_moments(skin_roi, x0, y0, x1, y1, np.ascontiguousarray(centers, np.float64),
+                      np.ascontiguousarray(gate * gate, np.float64), self._sums)
+        return self._sums[:, 0] >= self.params.min_area_px
+
+    def _acquire(self, skin_roi, box, centers, found, missing, top_roi) -> np.ndarray:
+        """Assign unclaimed colour regions to missing blobs; sets ``_acq_centers``/``_acq_gate``."""
+        p = self.params
+        K = len(self.roles)
+        x0, y0, x1, y1 = box
+        mask = (skin_roi[y0:y1, x0:x1] >= 0.5).view(np.uint8)
+        n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+        self._acq_centers = np.full((K, 2), np.nan)
+        self._acq_gate = np.zeros(K)
+        acquired = np.zeros(K, bool)
+        if n <= 1:
+            return acquired
+        stats = np.empty((n, 5), np.int64)
+        component_stats(labels, n, stats)
+        cand = []
+        for j in range(1, n):
+            xa, ya, xb, yb, area = stats[j]
+            if area < p.acquire_min_area_px:
+                continue
+            c = np.array([x0 + 0.5 * (xa + xb), y0 + 0.5 * (ya + yb)])
+            half = 0.5 * max(xb - xa, yb - ya) + 1.0
+            # a region that holds a found blob's centre is claimed
+            claimed = any(found[k] and x0 + xa - 1 <= self._sums[k, 1] / self._sums[k, 0] <= x0 + xb + 1
+                          and y0 + ya - 1 <= self._sums[k, 2] / self._sums[k, 0] <= y0 + yb + 1 for k in range(K))
+            if not claimed:
+                cand.append((float(area), c, half))
+        if not cand:
+            return acquired
+        cand.sort(key=lambda t: -t[0])
+        cand = cand[:4]
+
+        def take(k: int, i: int) -> None:
+            _, c, half = cand.pop(i)
+            self._acq_centers[k] = c
+            self._acq_gate[k] = half * 1.5
+            acquired[k] = True
+
+        # 1) a recently seen blob takes the candidate nearest its last position
+        for k in np.flatnonzero(missing):
+            if cand and np.isfinite(centers[k]).all():
+                d = [np.hypot(*(c - centers[k])) for _, c, _ in cand]
+                i = int(np.argmin(d))
+                if d[i] <= 3.0 * max(cand[i][2], p.gate_min_px):
+                    take(k, i)
+        # 2) the head: the candidate nearest the silhouette's top
+        roles = self.roles
+        if "head" in roles:
+            k = roles.index("head")
+            if missing[k] and not acquired[k] and cand and top_roi is not None:
+                big = [i for i, t in enumerate(cand) if t[0] >= 0.3 * cand[0][0]]
+                d = [np.hypot(*(cand[i][1] - top_roi)) for i in big]
+                take(k, big[int(np.argmin(d))])
+        # 3) left/right pairs: the largest remaining regions, by image x
+        pairs = [(roles.index(a), roles.index(b)) for a, b in (("hand_l", "hand_r"), ("foot_l", "foot_r"))
+                 if a in roles and b in roles]
+        for kl, kr in pairs:
+            need = [k for k in (kl, kr) if missing[k] and not acquired[k]]
+            if len(need) == 2 and len(cand) >= 2:
+                i_left, i_right = (0, 1) if cand[0][1][0] <= cand[1][1][0] else (1, 0)
+                # person facing the camera: their right hand is on the image's left
+                k_imgleft, k_imgright = (kr, kl) if p.facing_camera else (kl, kr)
+                c_left, c_right = cand[i_left], cand[i_right]
+                cand[:] = [t for i, t in enumerate(cand) if i not in (0, 1)] 
+                cand.insert(0, c_right)
+                cand.insert(0, c_left)
+                take(k_imgleft, 0)
+                take(k_imgright, 0)
+            elif len(need) == 1 and cand:
+                take(need[0], 0)
+        return acquired
+
+    def _mark_lost(self, lost: np.ndarray) -> None:
+        self._coast[lost] += 1
+
+    def _update_state(self, out: BlobFrame, found: np.ndarray) -> None:
+        for k in range(len(self.roles)):
+            if found[k]:
+                new = out.xy[k]
+                if self._coast[k] <= self.params.max_coast_frames and np.isfinite(self._xy[k]).all():
+                    self._vel[k] = (new - self._xy[k]) / (1 + self._coast[k])
+                else:
+                    self._vel[k] = 0.0
+                self._xy[k] = new
+                self._radius[k] = math.sqrt(max(out.area[k], 1.0) / math.pi)
+                self._coast[k] = 0
+            else:
+                self._coast[k] += 1

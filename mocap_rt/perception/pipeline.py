@@ -1,0 +1,233 @@
+"""Per-camera 2D perception (seed digest A.1, A.2, A.4, B.8): frame -> ``CameraCues``.
+
+Stages, each timed into ``CameraCues.timings_ms``:
+
+* ``silhouette``: change detection against the background model inside a region of
+  interest (the previous person box plus a margin; the whole image when there is none or
+  the person reaches the ROI's edge), largest 8-connected component, holes filled, box.
+* ``colour``: skin and shoe colour maps (A.1) inside the person box, on silhouette pixels.
+* ``blobs``: head/hands on the skin map, feet on the shoe map (A.2, A.4).
+* ``torso``: centre of the silhouette's distance-transform ridge.
+
+Usage::
+
+    perceiver = CameraPerceiver(camera, backgrounds)        # backgrounds (B, H, W, 3) BGR
+    cues = perceiver.process(image_bgr, frame, prediction)  # prediction: CuePrediction | None
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import tomllib
+from dataclasses import dataclass, fields, is_dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from mocap_rt.cues import CameraCues, CuePrediction
+from mocap_rt.geometry.camera import Camera
+from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
+from mocap_rt.perception.background import (BackgroundModel, ChangeThresholds, change_mask,
+                                            largest_component_filled)
+from mocap_rt.perception.blobs import BlobParams, BlobTracker
+from mocap_rt.perception.colour_model import (ColourModel, default_colour_model, likelihood_map,
+                                              load_colour_model)
+from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
+
+log = logging.getLogger(__name__)
+
+_SKIN_IDX = np.array([CUE_NAMES.index(c) for c in SKIN_CUES])
+_SHOE_IDX = np.array([CUE_NAMES.index(c) for c in SHOE_CUES])
+_TORSO = CUE_NAMES.index("torso")
+
+
+@dataclass(frozen=True)
+class PerceptionConfig:
+    """Settings of one camera's perception; pixel values are at the camera's resolution.
+
+    skin_model_path / shoe_model_path: TOML colour models; "" = the shipped defaults.
+    """
+
+    change: ChangeThresholds = ChangeThresholds()
+    skin_blobs: BlobParams = BlobParams()
+    shoe_blobs: BlobParams = BlobParams()
+    skin_model_path: str = ""
+    shoe_model_path: str = ""
+    roi_margin_px: int = 16               # ROI = previous person box + this ...
+    roi_margin_frac: float = 0.05         # ... + this fraction of the box's larger side
+    min_person_area_px: int = 200         # smaller largest component: no person
+    torso_ridge_frac: float = DEFAULT_RIDGE_FRAC
+    torso_step_px: int = 0                # distance-transform subsampling; 0 = 2 if width > 400 else 1
+    background_update_rate: float = 0.0   # > 0: slow background update (per frame blend weight)
+
+
+def _from_table(cls, table: dict, where: str):
+    names = {f.name: f for f in fields(cls)}
+    unknown = set(table) - set(names)
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {sorted(unknown)} (known: {sorted(names)})")
+    kwargs = {}
+    for key, value in table.items():
+        default = getattr(cls(), key)
+        if is_dataclass(default):
+            if not isinstance(value, dict):
+                raise ValueError(f"{where}: [{key}] must be a table")
+            kwargs[key] = _from_table(type(default), value, f"{where} [{key}]")
+        else:
+            try:
+                kwargs[key] = type(default)(value)
+            except (TypeError, ValueError):
+                raise ValueError(f"{where}: {key} = {value!r} is not a {type(default).__name__}") from None
+    return cls(**kwargs)
+
+
+def load_perception_config(path: str | Path) -> PerceptionConfig:
+    """Read a ``PerceptionConfig`` from TOML (top-level keys = fields, tables for nested ones).
+
+    Unknown keys are an error naming the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"perception config not found: {path}")
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+    return _from_table(PerceptionConfig, doc.get("perception", doc), str(path))
+
+
+class CameraPerceiver:
+    """Perception of one camera: keeps the background model and the 2D blob tracks.
+
+    camera : the camera (its ``name`` and ``size`` are used).
+    backgrounds : (B, H, W, 3) uint8 BGR frames of the empty scene.
+    """
+
+    def __init__(self, camera: Camera, backgrounds: np.ndarray,
+                 config: PerceptionConfig = PerceptionConfig()) -> None:
+        self.camera = camera
+        self.config = config
+        self.background = BackgroundModel.from_frames(backgrounds)
+        w, h = self.background.size
+        if tuple(int(v) for v in camera.size) != (w, h):
+            raise ValueError(f"camera {camera.name}: size {tuple(camera.size)} but backgrounds are {w}x{h}")
+        self.skin_model: ColourModel = (load_colour_model(config.skin_model_path) if config.skin_model_path
+                                        else default_colour_model("skin"))
+        self.shoe_model: ColourModel = (load_colour_model(config.shoe_model_path) if config.shoe_model_path
+                                        else default_colour_model("shoe"))
+        self.skin_tracker = BlobTracker(SKIN_CUES, config.skin_blobs)
+        self.shoe_tracker = BlobTracker(SHOE_CUES, config.shoe_blobs)
+        self._torso_step = config.torso_step_px or (2 if w > 400 else 1)
+        self._box: tuple[int, int, int, int] | None = None      # last person box, image px
+        self._sil: np.ndarray | None = None                      # last silhouette in its box
+        self._sil_box = (0, 0, 0, 0)
+        self.last_contours: dict[str, np.ndarray] = {}           # deformed blob contours (viewer)
+
+    # ------------------------------------------------------------------ public
+    @property
+    def last_silhouette(self) -> np.ndarray | None:
+        """(H, W) bool silhouette of the last processed frame (None before the first)."""
+        if self._sil is None:
+            return None
+        w, h = self.background.size
+        full = np.zeros((h, w), bool)
+        x, y, bw, bh = self._sil_box
+        full[y:y + bh, x:x + bw] = self._sil > 0
+        return full
+
+    def process(self, image_bgr: np.ndarray, frame: int, prediction: CuePrediction | None = None) -> CameraCues:
+        """Cues of one frame. image_bgr (H, W, 3) uint8 BGR; prediction for this frame or None."""
+        t0 = time.perf_counter()
+        img = np.asarray(image_bgr)
+        w, h = self.background.size
+        if img.shape != (h, w, 3) or img.dtype != np.uint8:
+            raise ValueError(f"camera {self.camera.name}: expected ({h}, {w}, 3) uint8 BGR, got {img.shape} {img.dtype}")
+        sil, box = self._silhouette(img)
+        t1 = time.perf_counter()
+        xy = np.full((6, 2), np.nan)
+        cov = np.full((6, 2, 2), np.nan)
+        area = np.zeros(6)
+        conf = np.zeros(6)
+        self.last_contours = {}
+        if box[2] == 0:
+            self.skin_tracker.step(np.zeros((1, 1), np.float32), (0, 0), (0, 0, 0, 0), None)
+            self.shoe_tracker.step(np.zeros((1, 1), np.float32), (0, 0), (0, 0, 0, 0), None)
+            t = time.perf_counter()
+            return CameraCues(self.camera.name, frame, xy, cov, area, conf, (0, 0, 0, 0),
+                              {"silhouette": (t1 - t0) * 1e3, "total": (t - t0) * 1e3})
+        bx, by, bw, bh = box
+        sub = img[by:by + bh, bx:bx + bw]
+        skin = likelihood_map(sub, self.skin_model, sil, binary=True)
+        shoe = likelihood_map(sub, self.shoe_model, sil, binary=True)
+        t2 = time.perf_counter()
+        top = self._top_point(sil)
+        for tracker, idx, cmap in ((self.skin_tracker, _SKIN_IDX, skin), (self.shoe_tracker, _SHOE_IDX, shoe)):
+            if prediction is not None:
+                res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, prediction.xy[idx],
+                                   prediction.visible[idx], prediction.radius_px[idx])
+            else:
+                res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top)
+            xy[idx], cov[idx], area[idx], conf[idx] = res.xy, res.cov, res.area, res.confidence
+            for k, c in zip(idx, res.contours):
+                if c is not None:
+                    self.last_contours[CUE_NAMES[k]] = c.copy()
+        t3 = time.perf_counter()
+        txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
+        if np.isfinite(txy).all():
+            xy[_TORSO] = txy + (bx, by)
+            cov[_TORSO] = tcov
+            area[_TORSO] = float(np.count_nonzero(sil))
+            conf[_TORSO] = 1.0
+        t4 = time.perf_counter()
+        if self.config.background_update_rate > 0:
+            self.background.update(img, self.last_silhouette, self.config.background_update_rate)
+        t5 = time.perf_counter()
+        timings = {"silhouette": (t1 - t0) * 1e3, "colour": (t2 - t1) * 1e3, "blobs": (t3 - t2) * 1e3,
+                   "torso": (t4 - t3) * 1e3, "total": (t5 - t0) * 1e3}
+        return CameraCues(self.camera.name, frame, xy, cov, area, conf, box, timings)
+
+    # ------------------------------------------------------------------ stages
+    def _roi(self) -> tuple[int, int, int, int]:
+        w, h = self.background.size
+        if self._box is None:
+            return 0, 0, w, h
+        x, y, bw, bh = self._box
+        m = int(self.config.roi_margin_px + self.config.roi_margin_frac * max(bw, bh))
+        x0, y0 = max(0, x - m), max(0, y - m)
+        x1, y1 = min(w, x + bw + m), min(h, y + bh + m)
+        return x0, y0, x1 - x0, y1 - y0
+
+    def _silhouette(self, img: np.ndarray) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+        """Silhouette (bh, bw) uint8 {0,255} inside the person box (x, y, w, h) image px."""
+        w, h = self.background.size
+        roi = self._roi()
+        while True:
+            rx, ry, rw, rh = roi
+            mask = change_mask(img, self.background, roi, self.config.change)
+            filled, (cx, cy, cw, ch) = largest_component_filled(mask, self.config.min_person_area_px)
+            full_roi = roi == (0, 0, w, h)
+            touches = cw > 0 and ((cx == 0 and rx > 0) or (cy == 0 and ry > 0) or
+                                  (cx + cw == rw and rx + rw < w) or (cy + ch == rh and ry + rh < h))
+            if full_roi or (cw > 0 and not touches):
+                break
+            roi = (0, 0, w, h)          # lost or leaving the ROI: search the whole image
+        if cw == 0:
+            self._box, self._sil, self._sil_box = None, np.zeros((0, 0), np.uint8), (0, 0, 0, 0)
+            return self._sil, (0, 0, 0, 0)
+        box = (rx + cx, ry + cy, cw, ch)
+        sil = filled[cy:cy + ch, cx:cx + cw]
+        self._box, self._sil, self._sil_box = box, sil, box
+        return sil, box
+
+    @staticmethod
+    def _top_point(sil: np.ndarray) -> tuple[float, float]:
+        """Silhouette top (x, y) in box pixels: mean x of the first row, a little below it."""
+        cols = np.flatnonzero(sil[0])
+        x = float(cols.mean()) if cols.size else sil.shape[1] / 2.0
+        return x, 0.06 * sil.shape[0]
+
+
+def config_with(config: PerceptionConfig, **changes) -> PerceptionConfig:
+    """``dataclasses.replace`` for the config (convenience for CLIs and benches)."""
+    return replace(config, **changes)
