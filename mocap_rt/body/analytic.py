@@ -8,7 +8,8 @@ angles) whose hands, feet and head lie on the cues when they are reachable.
 * Pan (not in the paper, which fixed it): the body's right axis is estimated from the
   left->right vectors of the feet and of the hands (feet weighted more), made
   perpendicular to the body axis; when the torso moves faster than
-  ``walk_speed_mps`` the walking direction (facing = velocity) is blended in. The
+  ``walk_speed_mps`` the walking direction (facing = velocity) is blended in and the
+  along-track components of the feet and hands vectors (steps, arm swing) are removed. The
   caller passes the previous right axis so the estimate can be smoothed.
 * Limbs (A.5): a goal is a direction and a clamped distance: the limb always points at
   its cue; the distance is clamped into ``[|L1 - L2|, L1 + L2]`` (fully stretched
@@ -43,8 +44,9 @@ class AnalyticConfig:
     feet_weight: float = 1.0        # weight of the feet's left->right vector for the pan
     hands_weight: float = 0.3       # weight of the hands' left->right vector
     walk_speed_mps: float = 0.4     # above this torso speed the walking direction counts
-    walk_weight: float = 1.0        # weight of the walking direction at twice that speed
-    pan_smoothing: float = 0.5      # 0 = no memory, -> 1 = keep the previous pan
+    walk_weight: float = 2.0        # weight of the walking direction at twice that speed
+    pan_smoothing: float = 0.5      # 0 = no memory, -> 1 = keep the previous pan (walking)
+    still_pan_smoothing: float = 0.9  # the same when standing (feet/hands only: less reliable)
 
 
 def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
@@ -64,20 +66,31 @@ def body_axes(cues: np.ndarray, prev_right: np.ndarray | None = None, velocity: 
     v = np.zeros(3)
     feet = cues[C_FOOT_R] - cues[C_FOOT_L]
     hands = cues[C_HAND_R] - cues[C_HAND_L]
-    if np.isfinite(feet).all():
-        v += config.feet_weight * feet / max(np.linalg.norm(feet), 0.05)
-    if np.isfinite(hands).all():
-        v += config.hands_weight * hands / max(np.linalg.norm(hands), 0.05)
+    heading = None
     if velocity is not None and np.isfinite(velocity).all():
         vh = velocity - up * (velocity @ up)
         speed = float(np.linalg.norm(vh))
         if speed > config.walk_speed_mps:
+            heading = vh / speed
             w = config.walk_weight * min(1.0, (speed - config.walk_speed_mps) / config.walk_speed_mps)
-            v += w * np.cross(vh / speed, up)  # facing = velocity: right = forward x up
+            v += w * np.cross(heading, up)  # facing = velocity: right = forward x up
+    for vec, weight in ((feet, config.feet_weight), (hands, config.hands_weight)):
+        if not np.isfinite(vec).all():
+            continue
+        if heading is not None:  # while walking, feet and hands separate along the track
+            vec = vec - heading * (vec @ heading)
+        elif prev_right is not None:
+            # standing: the feet may be side by side or staggered, so the feet line gives
+            # the pan modulo 90 degrees; take the candidate nearest the previous right axis
+            vec = vec - up * (vec @ up)
+            cands = (vec, -vec, np.cross(up, vec), -np.cross(up, vec))
+            vec = max(cands, key=lambda c: float(c @ prev))
+        v += weight * vec / max(np.linalg.norm(vec), 0.05)
     v = v - up * (v @ up)
     right = _unit(v, prev)
-    if prev_right is not None and config.pan_smoothing > 0:
-        right = _unit((1 - config.pan_smoothing) * right + config.pan_smoothing * prev, right)
+    keep = config.pan_smoothing if heading is not None else config.still_pan_smoothing
+    if prev_right is not None and keep > 0:
+        right = _unit((1 - keep) * right + keep * prev, right)
     right = _unit(right - up * (right @ up), np.cross(np.array([0.0, 1, 0]), up))
     forward = np.cross(up, right)
     return np.column_stack([right, forward, up])

@@ -1,0 +1,99 @@
+"""Temporal filter of the six 3D cues: a constant-velocity Kalman filter per cue.
+
+Why Kalman rather than One-Euro: the fusion needs a *prediction* for the next frame
+(seed digest A.4, the perception stage searches around it) and a principled way to
+coast through missed detections and to gate outliers by their innovation; a
+constant-velocity Kalman filter gives all three, while One-Euro only smooths.
+
+Each cue has the state (position, velocity) per axis with one 2x2 covariance shared by
+the three axes (isotropic measurement noise, white-acceleration process noise):
+
+    F = [[1, dt], [0, 1]],  Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]],  R = r^2
+
+with ``q = accel_noise_mps2^2 * dt`` style spectral density ``accel_psd`` (m^2/s^3).
+A measurement farther than ``gate_m`` from the prediction is rejected unless the track
+has coasted for more than ``max_coast_s`` (then it restarts on the measurement).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Kalman settings (units in the names)."""
+
+    accel_psd_m2ps3: float = 50.0      # white-acceleration spectral density q
+    measurement_noise_m: float = 0.006  # r, std of a triangulated cue
+    gate_m: float = 0.35               # innovation gate (distance to the prediction)
+    max_coast_s: float = 0.5           # after this long without an update a track is dropped
+    initial_velocity_std_mps: float = 1.0
+
+
+class CueFilter:
+    """Constant-velocity Kalman filter for N 3D points (default the 6 cues).
+
+    State: ``pos (N, 3)`` metres, ``vel (N, 3)`` m/s, ``cov (N, 2, 2)``, ``time_s`` of the
+    state, ``last_update_s (N,)``; ``alive (N,)`` bool.
+    """
+
+    def __init__(self, n: int = 6, config: FilterConfig = FilterConfig()) -> None:
+        self.config = config
+        self.pos = np.full((n, 3), np.nan)
+        self.vel = np.zeros((n, 3))
+        self.cov = np.zeros((n, 2, 2))
+        self.alive = np.zeros(n, dtype=bool)
+        self.last_update_s = np.full(n, -np.inf)
+        self.time_s: float | None = None
+
+    def _propagate(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        q = self.config.accel_psd_m2ps3
+        F = np.array([[1.0, dt], [0.0, 1.0]])
+        Q = q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+        return self.pos + self.vel * dt, self.vel.copy(), F @ self.cov @ F.T + Q
+
+    def predict_at(self, time_s: float) -> np.ndarray:
+        """(N, 3) predicted positions at ``time_s`` (NaN for dead tracks); state unchanged."""
+        if self.time_s is None:
+            return np.full_like(self.pos, np.nan)
+        pos, _, _ = self._propagate(time_s - self.time_s)
+        return np.where(self.alive[:, None], pos, np.nan)
+
+    def update(self, time_s: float, z: np.ndarray) -> np.ndarray:
+        """Advance to ``time_s`` and fuse measurements ``z (N, 3)`` (NaN rows = missing).
+
+        Returns (N,) bool: the measurement was accepted.
+        """
+        cfg = self.config
+        z = np.asarray(z, dtype=np.float64)
+        if self.time_s is not None:
+            dt = max(0.0, time_s - self.time_s)
+            self.pos, self.vel, self.cov = self._propagate(dt)
+        self.time_s = time_s
+        self.alive &= (time_s - self.last_update_s) <= cfg.max_coast_s
+        has = np.isfinite(z).all(axis=1)
+        innov = z - self.pos
+        dist = np.linalg.norm(innov, axis=1)
+        ok = has & self.alive & (dist <= cfg.gate_m)
+        start = has & ~self.alive
+        # Kalman update for accepted measurements (shared 2x2 covariance per point)
+        S = self.cov[:, 0, 0] + cfg.measurement_noise_m ** 2
+        K = self.cov[:, :, 0] / S[:, None]                          # (N, 2)
+        sel = ok
+        self.pos[sel] += K[sel, 0:1] * innov[sel]
+        self.vel[sel] += K[sel, 1:2] * innov[sel]
+        KH = np.zeros((len(S), 2, 2))
+        KH[:, :, 0] = K
+        new_cov = (np.eye(2) - KH) @ self.cov
+        self.cov[sel] = new_cov[sel]
+        # (re)start tracks on their first measurement
+        self.pos[start] = z[start]
+        self.vel[start] = 0.0
+        self.cov[start] = np.diag([cfg.measurement_noise_m ** 2, cfg.initial_velocity_std_mps ** 2])
+        self.alive |= start
+        accepted = ok | start
+        self.last_update_s[accepted] = time_s
+        return accepted

@@ -1,0 +1,260 @@
+"""Per-frame fusion: camera cues -> 3D cues -> body pose, with explicit state.
+
+``BodyTracker.step(frame, cues)`` does, for one frame:
+
+1. gather the 2D cues of the cameras present (absent cameras are simply missing);
+2. triangulate the six cues, by ``FusionConfig.views``:
+   ``"all"`` (default) every camera that sees a cue, weighted least squares of the rays
+   with reprojection outlier rejection; or ``"pair"`` the frontal adjacent pair chosen
+   from the feet direction (seed digest A.6), falling back to all views for a cue the
+   pair does not both see;
+3. update a constant-velocity Kalman filter per cue (``fusion.filter``), which also
+   coasts through short gaps and gates outliers;
+4. solve the body: analytic two-link IK (A.5) with the pan estimated from the cues,
+   optionally refined by the improved CCD (B.7) on the full 38-DOF model;
+5. return a ``FusionResult`` (3D cues, joints, a BVH motion row, timings).
+
+``predict(frame)`` extrapolates the filter to a coming frame and gives every camera the
+predicted 2D cues with Z-buffer visibility and blob radius (A.4).
+
+Bone lengths: ``FusionConfig.bone_lengths`` if given; else a default adult until
+``calibration_s`` of cues have been seen, then ``estimate_bone_lengths`` of them
+(``tracker.calibrated`` turns True and ``bvh_skeleton`` changes once).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mocap_rt.body.analytic import AnalyticConfig, analytic_pose, body_axes, pan_angle
+from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
+from mocap_rt.body.ccd import CcdConfig, solve_ccd
+from mocap_rt.body.estimate import estimate_bone_lengths
+from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BoneLengths, body_model
+from mocap_rt.cues import CameraCues, CuePrediction
+from mocap_rt.fusion.filter import CueFilter, FilterConfig
+from mocap_rt.fusion.views import CUE_RADII_M, frontal_pair, predict_views, triangulate_cues
+from mocap_rt.geometry.ray_triangulator import RayTriangulator
+from mocap_rt.geometry.rig import Rig
+from mocap_rt.io.bvh import BvhSkeleton
+from mocap_rt.names import CUE_NAMES
+
+log = logging.getLogger(__name__)
+
+N_CUES = len(CUE_NAMES)
+C_TORSO = CUE_NAMES.index("torso")
+C_FOOT_L, C_FOOT_R = CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")
+_EFFECTOR_CUES = np.array([CUE_NAMES.index(n) for n in END_EFFECTORS])
+_EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
+VIEW_MODES = ("all", "pair")
+IK_MODES = ("analytic", "ccd")
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Fusion settings; each default lives here (units in the names)."""
+
+    fps: float = 30.0                      # frame rate, converts frame numbers to seconds
+    views: str = "all"                     # "all" or "pair" (A.6 frontal pair)
+    max_reproj_px: float = 6.0             # outlier rejection threshold
+    min_confidence: float = 0.05           # 2D cues below this are ignored
+    use_filtered: bool = False             # IK on filtered (True) or measured (False) cues
+    ik: str = "analytic"                   # "analytic" or "ccd" (analytic + CCD refinement)
+    bone_lengths: BoneLengths | None = None
+    calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
+    velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    analytic: AnalyticConfig = field(default_factory=AnalyticConfig)
+    ccd: CcdConfig = field(default_factory=lambda: CcdConfig(angle_tolerance_deg=20.0, max_iterations=30))
+
+    def __post_init__(self) -> None:
+        if self.views not in VIEW_MODES:
+            raise ValueError(f"FusionConfig.views must be one of {VIEW_MODES}, got {self.views!r}")
+        if self.ik not in IK_MODES:
+            raise ValueError(f"FusionConfig.ik must be one of {IK_MODES}, got {self.ik!r}")
+        if self.fps <= 0:
+            raise ValueError(f"FusionConfig.fps must be > 0, got {self.fps}")
+
+
+@dataclass
+class FusionResult:
+    """One fused frame.
+
+    cues_3d : (6, 3) metres, world; the cues measured this frame (filtered if
+        ``use_filtered``), NaN where not reconstructed. cue_valid : (6,) bool.
+    joints : (20, 3) metres, world, JOINT_NAMES order (NaN before the first full pose).
+    bvh_frame : (n_channels,) motion row for ``BodyTracker.bvh_skeleton``.
+    cameras_used : names of the cameras that contributed a cue.
+    root_pos (3,), angles (20, 3) radians: the body model pose; pan_rad: the heading.
+    pair : the frontal pair's camera names in "pair" mode, else ().
+    """
+
+    frame: int
+    cues_3d: np.ndarray
+    cue_valid: np.ndarray
+    joints: np.ndarray
+    bvh_frame: np.ndarray
+    cameras_used: tuple[str, ...]
+    timings_ms: dict
+    root_pos: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    angles: np.ndarray = field(default_factory=lambda: np.zeros((N_JOINTS, 3)))
+    pan_rad: float = float("nan")
+    pair: tuple[str, ...] = ()
+    cues_ik: np.ndarray = field(default_factory=lambda: np.full((N_CUES, 3), np.nan))
+
+
+class BodyTracker:
+    """Stateful fusion for one rig (see the module doc). Not thread-safe."""
+
+    def __init__(self, rig: Rig, config: FusionConfig = FusionConfig()) -> None:
+        self.rig = rig
+        self.config = config
+        self.cameras = tuple(rig.cameras)
+        self._names = list(rig.names)
+        self._tri = RayTriangulator(self.cameras)
+        self._centers = np.array([c.center for c in self.cameras])
+        self.filter = CueFilter(N_CUES, config.filter)
+        self._calib: list[np.ndarray] = []
+        self.calibrated = config.bone_lengths is not None
+        self._set_lengths(config.bone_lengths or BoneLengths())
+        self._right: np.ndarray | None = None
+        self._last_pose: tuple[np.ndarray, np.ndarray] | None = None
+        self._pair: tuple[int, int] | None = None
+        self._vel: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ model
+    def _set_lengths(self, lengths: BoneLengths) -> None:
+        self.lengths = lengths
+        self.model = body_model(lengths, "paper")
+        self.model_full = body_model(lengths, "full")
+        self._bvh = bvh_skeleton(self.model)
+
+    @property
+    def bvh_skeleton(self) -> BvhSkeleton:
+        """The BVH hierarchy matching ``FusionResult.bvh_frame`` (changes once, at calibration)."""
+        return self._bvh
+
+    # ------------------------------------------------------------------ 2D -> 3D
+    def _gather(self, cues: Mapping[str, CameraCues]) -> tuple[np.ndarray, np.ndarray]:
+        C = len(self.cameras)
+        uv = np.full((C, N_CUES, 2), np.nan)
+        w = np.zeros((C, N_CUES))
+        for name, cc in cues.items():
+            if name not in self._names:
+                continue
+            c = self._names.index(name)
+            ok = cc.found & (cc.confidence >= self.config.min_confidence)
+            uv[c, ok] = cc.xy[ok]
+            w[c, ok] = cc.confidence[ok]
+        return uv, w
+
+    def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6)."""
+        X, used, _ = triangulate_cues(self._tri, self.cameras, uv, w, self.config.max_reproj_px)
+        if self.config.views == "pair" and self._pair is not None:
+            a, b = self._pair
+            wp = np.zeros_like(w)
+            wp[[a, b]] = w[[a, b]]
+            both = (np.isfinite(uv[[a, b]]).all(-1) & (wp[[a, b]] > 0)).all(axis=0)
+            if both.any():
+                Xp = self._tri(uv, wp)
+                X = np.where(both[:, None], Xp, X)
+                used = np.where(both[None, :], wp > 0, used)
+        return X, used
+
+    # ------------------------------------------------------------------ body
+    def solve_pose(self, cues_ik: np.ndarray, velocity: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Body pose from six 3D cues (6, 3) (all finite): (root (3,), angles (J, 3), joints (J, 3), pan)."""
+        axes = body_axes(cues_ik, self._right, velocity, self.config.analytic)
+        self._right = axes[:, 0]
+        root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic)
+        if self.config.ik == "ccd":
+            res = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
+                            reference=angles, config=self.config.ccd)
+            angles = res.angles
+            model = self.model_full
+        else:
+            model = self.model
+        joints = forward_kinematics(model, root, angles)[0]
+        return root, angles, joints, pan_angle(axes)
+
+    def _maybe_calibrate(self, X: np.ndarray) -> None:
+        if self.calibrated:
+            return
+        self._calib.append(X.copy())
+        if len(self._calib) < self.config.calibration_s * self.config.fps:
+            return
+        est = estimate_bone_lengths(np.array(self._calib), self.lengths)
+        self._calib.clear()
+        if est is None:
+            return
+        log.info("bone lengths estimated from the cues: scale %.3f of the default adult",
+                 est.trunk_m / BoneLengths().trunk_m)
+        self._set_lengths(est)
+        self.calibrated = True
+
+    # ------------------------------------------------------------------ API
+    def step(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:
+        """Fuse one frame (see the module doc)."""
+        t0 = time.perf_counter()
+        timings: dict[str, float] = {}
+        t_s = frame / self.config.fps
+        uv, w = self._gather(cues)
+        X, used = self.triangulate(uv, w)
+        t1 = time.perf_counter()
+        timings["triangulate"] = (t1 - t0) * 1e3
+        valid = np.isfinite(X).all(axis=1)
+        accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
+        valid &= accepted
+        filt = np.where(self.filter.alive[:, None], self.filter.pos, np.nan)
+        measured = np.where(valid[:, None], filt if self.config.use_filtered else X, np.nan)
+        cues_ik = np.where(valid[:, None], measured, filt)
+        self._maybe_calibrate(np.where(valid[:, None], X, np.nan))
+        t2 = time.perf_counter()
+        timings["filter"] = (t2 - t1) * 1e3
+        joints = np.full((N_JOINTS, 3), np.nan)
+        root, angles, pan = np.full(3, np.nan), np.zeros((N_JOINTS, 3)), float("nan")
+        if np.isfinite(cues_ik).all():
+            v = self.filter.vel[C_TORSO]
+            a = self.config.velocity_smoothing
+            self._vel = v.copy() if self._vel is None else a * self._vel + (1 - a) * v
+            root, angles, joints, pan = self.solve_pose(cues_ik, self._vel)
+            self._last_pose = (root, angles)
+        t3 = time.perf_counter()
+        timings["ik"] = (t3 - t2) * 1e3
+        if self._last_pose is not None:
+            row = bvh_frame(self.model, *self._last_pose) if self.config.ik == "analytic" else \
+                bvh_frame(self.model_full, *self._last_pose)
+        else:
+            row = bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3)))
+        self._update_pair(cues_ik)
+        timings["total"] = (time.perf_counter() - t0) * 1e3
+        cams_used = tuple(self._names[c] for c in range(len(self._names)) if used[c].any())
+        pair = tuple(self._names[i] for i in self._pair) if (self.config.views == "pair" and self._pair) else ()
+        return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
+                            root, angles, pan, pair, cues_ik)
+
+    def _update_pair(self, cues_ik: np.ndarray) -> None:
+        if self.config.views != "pair":
+            return
+        fwd = None
+        if self._right is not None:
+            up = np.array([0.0, 0, 1])
+            fwd = np.cross(up, self._right)
+        pair = frontal_pair(self._centers, cues_ik[C_FOOT_L], cues_ik[C_FOOT_R], cues_ik[C_TORSO], fwd)
+        if pair is not None:
+            self._pair = pair
+
+    def predict(self, frame: int) -> dict[str, CuePrediction]:
+        """Predicted cues of every rig camera for ``frame`` (A.4)."""
+        X = self.filter.predict_at(frame / self.config.fps)
+        xy, vis, rad = predict_views(self.cameras, X, CUE_RADII_M)
+        return {name: CuePrediction(name, int(frame), xy[c], vis[c], rad[c])
+                for c, name in enumerate(self._names)}
