@@ -1,0 +1,92 @@
+"""``mocap-rt run``: the real-time capture service, every node its own process.
+
+Also ``mocap-rt node ROLE ...`` to start a single node by hand or from systemd
+(``sync``, ``camera``, ``fusion``, ``recorder``, ``viewer``), with the node's own flags.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+NODE_MODULES = {"sync": "nodes.sync", "camera": "nodes.camera_worker", "fusion": "nodes.fusion_node",
+                "recorder": "nodes.recorder", "viewer": "nodes.viewer"}
+
+
+def _speed(text: str) -> float | None:
+    if text == "max":
+        return None
+    v = float(text)
+    if v <= 0:
+        raise argparse.ArgumentTypeError("--speed must be > 0 or 'max'")
+    return v
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "run", help="run the real-time capture service (sync, camera workers, fusion, recorder, viewer)",
+        description="Start every node of the service as its own process on this host (Zenoh peers on "
+                    "127.0.0.1), show a live status line, stop on Ctrl-C or after --duration.")
+    p.add_argument("--rig", type=Path, default=None,
+                   help="rig TOML (default for replay/fake sources: REC_DIR/rig.toml)")
+    p.add_argument("--source", required=True,
+                   help="replay:REC_DIR | v4l2:/dev/video0,/dev/video2,... (one per camera) | fake:REC_DIR")
+    p.add_argument("--speed", type=_speed, default=1.0, help="replay speed factor or 'max' (default 1.0)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="seconds to run (default: one pass of a replay; live: until Ctrl-C)")
+    p.add_argument("--rerun", default=None, help="viewer: save:FILE.rrd | serve[:PORT] | spawn")
+    p.add_argument("--record", type=Path, default=None, help="record poses (BVH, NPZ) and live streams here")
+    p.add_argument("--stats", type=Path, default=None, help="write run statistics JSON here")
+    p.add_argument("--deadline-frac", type=float, default=0.8,
+                   help="fusion waits for late cameras at most this fraction of a frame period")
+    p.add_argument("--preview-every", type=int, default=None,
+                   help="camera image to the viewer every N frames (default 3 with --rerun)")
+    p.add_argument("--no-restart", action="store_true", help="do not restart nodes that die")
+    p.add_argument("--log-dir", type=Path, default=None, help="node logs (default: a temp dir)")
+    p.add_argument("--quiet", action="store_true", help="no live status line")
+    p.set_defaults(func=run)
+
+    n = subparsers.add_parser("node", help="run one service node (for systemd / multi-host deploys)",
+                              description="mocap-rt node ROLE [node flags]; see deploy/README in docs/service.md")
+    n.add_argument("role", choices=sorted(NODE_MODULES))
+    n.add_argument("node_args", nargs=argparse.REMAINDER, help="the node's own flags (--help for them)")
+    n.set_defaults(func=run_node)
+
+
+def run(args: argparse.Namespace) -> int:
+    from nodes.launcher import Launcher, RunConfig
+    from nodes.sources import parse_source
+
+    kind, value = parse_source(args.source)
+    rig = args.rig
+    if rig is None:
+        if kind not in ("replay", "fake"):
+            raise ValueError("--rig is required for v4l2 sources")
+        rig = Path(value) / "rig.toml"
+    if not Path(rig).is_file():
+        raise FileNotFoundError(f"rig file {rig} not found")
+    if kind in ("replay", "fake") and not (Path(value) / "recording.toml").is_file():
+        raise FileNotFoundError(f"--source {args.source}: {value} is not a recording directory (no recording.toml)")
+    if args.duration is not None and args.duration <= 0:
+        raise ValueError("--duration must be > 0")
+    cfg = RunConfig(rig_path=Path(rig), source=args.source, speed=args.speed, duration_s=args.duration,
+                    rerun=args.rerun, record=args.record, stats=args.stats, deadline_frac=args.deadline_frac,
+                    preview_every=args.preview_every, restart=not args.no_restart, log_dir=args.log_dir,
+                    status_line=not args.quiet)
+    launcher = Launcher(cfg)
+    print(f"mocap-rt run: rig {launcher.rig_name}, {len(launcher.rig)} cameras, trigger "
+          f"{launcher.trigger_fps:g} fps ({'free-run' if cfg.speed is None else f'x{cfg.speed:g}'}), "
+          f"node logs in {launcher.log_dir}", file=sys.stderr)
+    stats = launcher.run()
+    summary = {k: stats[k] for k in ("frames_triggered", "poses_published", "frames_dropped", "latency_ms")}
+    print(json.dumps(summary))
+    return 0
+
+
+def run_node(args: argparse.Namespace) -> int:
+    import importlib
+
+    mod = importlib.import_module(NODE_MODULES[args.role])
+    return int(mod.main(args.node_args) or 0)

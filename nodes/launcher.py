@@ -1,0 +1,375 @@
+"""The launcher behind ``mocap-rt run``: every node its own process on this host.
+
+Start order: recorder and viewer (so they miss nothing), fusion, one camera worker per
+camera; when all report ready, the sync node. Every node listens on its own loopback port
+and connects to every other one (a full mesh of explicit endpoints: no scouting, no
+router). A node that dies is restarted (``RESTART_LIMIT`` times); stopping (Ctrl-C,
+``--duration``, end of a replay) stops the sync first, lets the last poses arrive, then
+sends SIGTERM to the rest (SIGKILL after ``STOP_TIMEOUT_S``).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from nodes.messages import Keys
+from nodes.monitor import ServiceMonitor, percentiles
+from nodes.sources import parse_source
+from nodes.transport import make_config, zenoh_argv
+
+log = logging.getLogger(__name__)
+
+STARTUP_TIMEOUT_S = 180.0      # first start compiles numba kernels; later starts use the cache
+STOP_TIMEOUT_S = 5.0
+DRAIN_S = 0.5                  # after the last trigger, wait this long for its pose
+RESTART_LIMIT = 10
+POLL_S = 0.05
+STATUS_LINE_PERIOD_S = 1.0
+DEFAULT_PREVIEW_EVERY = 3      # with a viewer: one JPEG per camera every 3 frames
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything ``mocap-rt run`` was asked to do (see ``nodes/cli.py`` for the flags)."""
+
+    rig_path: Path
+    source: str
+    speed: float | None = 1.0          # None = as fast as possible (free-running sync)
+    duration_s: float | None = None
+    rerun: str | None = None
+    record: Path | None = None
+    stats: Path | None = None
+    rig_name: str | None = None
+    deadline_frac: float = 0.8
+    preview_every: int | None = None
+    restart: bool = True
+    log_dir: Path | None = None
+    status_line: bool = True
+    fps: float | None = None           # override the trigger base rate
+    extra_node_args: dict = field(default_factory=dict)   # node role -> extra argv
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _die_with_parent() -> None:
+    """preexec_fn: the child gets SIGTERM if the launcher dies (Linux prctl PR_SET_PDEATHSIG)."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+@dataclass
+class NodeProc:
+    """One supervised node process."""
+
+    name: str
+    role: str
+    argv: list[str]
+    port: int
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    cpu_done_s: float = 0.0            # CPU of earlier (dead) instances
+    cpu_last_s: float = 0.0            # CPU of the current instance, last seen
+    finished: bool = False             # exited on its own with code 0 (sync at end of replay)
+
+    @property
+    def cpu_s(self) -> float:
+        return self.cpu_done_s + self.cpu_last_s
+
+
+class Launcher:
+    """Starts, supervises and stops the node processes of one run; collects statistics."""
+
+    def __init__(self, cfg: RunConfig) -> None:
+        from mocap_rt.geometry.rig import read_rig
+        from nodes.runtime import rig_name_for
+
+        self.cfg = cfg
+        kind, value = parse_source(cfg.source)
+        self.source_kind = kind
+        if not Path(cfg.rig_path).is_file():
+            raise FileNotFoundError(f"--rig {cfg.rig_path}: no such file")
+        self.rig = read_rig(cfg.rig_path)
+        self.rig_name = cfg.rig_name or rig_name_for(cfg.rig_path, self.rig)
+        self.keys = Keys(self.rig_name)
+        self.base_fps = cfg.fps or self._source_fps(kind, value)
+        self.trigger_fps = 0.0 if cfg.speed is None else self.base_fps * cfg.speed
+        self.n_replay_frames = self._replay_frames(kind, value)
+        self.log_dir = Path(cfg.log_dir or tempfile.mkdtemp(prefix="mocap-rt-logs-"))
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.nodes: dict[str, NodeProc] = {}
+        self.monitor_port = free_port()
+        self.session = None
+        self.monitor: ServiceMonitor | None = None
+        self.stopping = False
+        self.t_sync_start: float | None = None
+        self.t_sync_stop: float | None = None
+        self._plan()
+
+    # ------------------------------------------------------------ planning
+    def _source_fps(self, kind: str, value: str) -> float:
+        if kind in ("replay", "fake"):
+            from mocap_rt.io.recording import Recording
+
+            return float(Recording(value).fps)
+        return float(self.rig.metadata.get("fps", 30.0))
+
+    def _replay_frames(self, kind: str, value: str) -> int | None:
+        if kind != "replay":
+            return None
+        from mocap_rt.io.recording import Recording
+
+        return int(Recording(value).n_frames)
+
+    def _worker_sources(self) -> dict[str, str]:
+        kind, value = parse_source(self.cfg.source)
+        names = list(self.rig.names)
+        if kind == "v4l2":
+            devs = value.split(",")
+            if len(devs) != len(names):
+                raise ValueError(f"--source v4l2: {len(devs)} device(s) for {len(names)} rig cameras "
+                                 f"(give one per camera, in rig order, comma-separated)")
+            return {n: f"v4l2:{d}" for n, d in zip(names, devs)}
+        return {n: f"{kind}:{value}" for n in names}
+
+    def _plan(self) -> None:
+        cfg = self.cfg
+        live = self.source_kind != "replay"
+        common = ["--rig", str(cfg.rig_path), "--rig-name", self.rig_name]
+        preview = cfg.preview_every if cfg.preview_every is not None else (DEFAULT_PREVIEW_EVERY if cfg.rerun else 0)
+        plan: list[tuple[str, str, list[str]]] = []
+        if cfg.record:
+            plan.append(("recorder", "recorder", ["-m", "nodes.recorder", "--out", str(cfg.record),
+                                                  "--fps", str(self.base_fps)] + (["--raw"] if live else [])))
+        if cfg.rerun:
+            plan.append(("viewer", "viewer", ["-m", "nodes.viewer", "--rerun", cfg.rerun]))
+        plan.append(("fusion", "fusion", ["-m", "nodes.fusion_node", "--deadline-frac", str(cfg.deadline_frac)]))
+        for cam, src in self._worker_sources().items():
+            argv = ["-m", "nodes.camera_worker", "--camera", cam, "--source", src, "--fps", str(self.base_fps),
+                    "--preview-every", str(preview)]
+            if live and cfg.record:
+                argv.append("--publish-frames")
+            plan.append((f"worker-{cam}", "camera", argv))
+        sync_argv = ["-m", "nodes.sync", "--fps", str(self.trigger_fps)]
+        if self.n_replay_frames and cfg.duration_s is None:
+            sync_argv += ["--frames", str(self.n_replay_frames)]
+        plan.append(("sync", "sync", sync_argv))
+        ports = {name: free_port() for name, _, _ in plan}
+        for name, role, argv in plan:
+            others = [f"tcp/127.0.0.1:{p}" for n, p in ports.items() if n != name]
+            others.append(f"tcp/127.0.0.1:{self.monitor_port}")
+            z = zenoh_argv([f"tcp/127.0.0.1:{ports[name]}"], others)
+            extra = list(cfg.extra_node_args.get(role, []))
+            self.nodes[name] = NodeProc(name, role, argv + common + ["--node", name] + z + extra, ports[name])
+
+    # ------------------------------------------------------------ processes
+    def _spawn(self, node: NodeProc) -> None:
+        logf = open(self.log_dir / f"{node.name}.log", "ab")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        node.proc = subprocess.Popen([sys.executable] + node.argv, stdout=logf, stderr=subprocess.STDOUT,
+                                     stdin=subprocess.DEVNULL, env=env, start_new_session=True,
+                                     preexec_fn=_die_with_parent)
+        logf.close()
+        node.cpu_last_s = 0.0
+        log.debug("started %s pid %d", node.name, node.proc.pid)
+
+    def pid(self, name: str) -> int:
+        return self.nodes[name].proc.pid
+
+    def _sample_cpu(self) -> None:
+        import psutil
+
+        for n in self.nodes.values():
+            if n.proc is None or n.proc.poll() is not None:
+                continue
+            try:
+                t = psutil.Process(n.proc.pid).cpu_times()
+                n.cpu_last_s = t.user + t.system
+            except (psutil.NoSuchProcess, psutil.AccessDenied):
+                pass
+
+    def supervise(self) -> list[str]:
+        """Restart nodes that died; returns the names restarted now."""
+        restarted = []
+        for n in self.nodes.values():
+            if n.proc is None or n.finished or self.stopping:
+                continue
+            rc = n.proc.poll()
+            if rc is None:
+                continue
+            if rc == 0 and n.role == "sync":
+                n.finished = True
+                continue
+            n.cpu_done_s += n.cpu_last_s
+            n.cpu_last_s = 0.0
+            if not self.cfg.restart or n.restarts >= RESTART_LIMIT:
+                n.finished = True
+                log.error("%s exited with %s; not restarted (see %s)", n.name, rc, self.log_dir / f"{n.name}.log")
+                continue
+            n.restarts += 1
+            log.warning("%s exited with %s; restarting (%d)", n.name, rc, n.restarts)
+            self._spawn(n)
+            restarted.append(n.name)
+        return restarted
+
+    # ------------------------------------------------------------ run phases
+    def start(self) -> None:
+        """Open the monitor session, start every node but sync, wait until they are ready."""
+        import zenoh
+
+        others = [f"tcp/127.0.0.1:{n.port}" for n in self.nodes.values()]
+        self.session = zenoh.open(make_config([f"tcp/127.0.0.1:{self.monitor_port}"], others))
+        self.monitor = ServiceMonitor(self.session, self.keys)
+        for n in self.nodes.values():
+            if n.role != "sync":
+                self._spawn(n)
+        waiting = [n.name for n in self.nodes.values() if n.role != "sync"]
+        t_end = time.monotonic() + STARTUP_TIMEOUT_S
+        while waiting:
+            if self.stopping:
+                return
+            if time.monotonic() > t_end:
+                raise RuntimeError(f"nodes not ready after {STARTUP_TIMEOUT_S:.0f} s: {waiting} "
+                                   f"(logs in {self.log_dir})")
+            for name in list(waiting):
+                n = self.nodes[name]
+                if n.proc.poll() is not None and (not self.cfg.restart or n.restarts >= 2):
+                    raise RuntimeError(f"{name} failed at start (exit {n.proc.returncode}); "
+                                       f"see {self.log_dir / (name + '.log')}")
+                if self.monitor.node_state(name) in ("ready", "running"):
+                    waiting.remove(name)
+            self.supervise()
+            time.sleep(POLL_S)
+        self._spawn(self.nodes["sync"])
+        self.t_sync_start = time.monotonic()
+
+    def done(self) -> bool:
+        """True once the run should end (duration passed or the replay was played once)."""
+        if self.t_sync_start is None:
+            return self.stopping
+        if self.cfg.duration_s is not None and time.monotonic() - self.t_sync_start >= self.cfg.duration_s:
+            return True
+        return self.nodes["sync"].finished or self.stopping
+
+    def status_line(self) -> str:
+        m = self.monitor
+        trig, poses, missing = m.counts()
+        lat = percentiles(m.latencies_ms(last=300))
+        cams = m.alive_nodes("camera")
+        n_cams = sum(1 for n in self.nodes.values() if n.role == "camera")
+        drops = sum(v["drops"] for k, v in m.node_table().items())
+        t = 0.0 if self.t_sync_start is None else time.monotonic() - self.t_sync_start
+        return (f"t={t:6.1f}s  pose fps {m.recent_fps():5.1f}  triggered {trig}  poses {poses}  "
+                f"no-pose {missing}  latency p50 {lat['p50']:.1f} p99 {lat['p99']:.1f} ms  "
+                f"node drops {drops}  cameras alive {len(cams)}/{n_cams}")
+
+    def run(self) -> dict:
+        """start -> supervise until done -> stop; returns the statistics dict."""
+        prev = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+        def _stop(signum, frame):  # noqa: ARG001
+            self.stopping = True
+        for s in prev:
+            signal.signal(s, _stop)
+        try:
+            self.start()
+            last_line = 0.0
+            tty = sys.stderr.isatty()
+            while not self.done():
+                self.supervise()
+                now = time.monotonic()
+                if now - last_line >= STATUS_LINE_PERIOD_S:
+                    self._sample_cpu()
+                    last_line = now
+                    if self.cfg.status_line:
+                        line = self.status_line()
+                        print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
+                time.sleep(POLL_S)
+            if self.cfg.status_line and sys.stderr.isatty():
+                print(file=sys.stderr)
+        finally:
+            self.stop()
+            for s, h in prev.items():
+                signal.signal(s, h)
+        stats = self.stats()
+        if self.cfg.stats:
+            Path(self.cfg.stats).parent.mkdir(parents=True, exist_ok=True)
+            Path(self.cfg.stats).write_text(json.dumps(stats, indent=2, default=float))
+        return stats
+
+    def _terminate(self, names: list[str]) -> None:
+        procs = [self.nodes[n] for n in names if self.nodes[n].proc is not None]
+        for n in procs:
+            if n.proc.poll() is None:
+                n.proc.send_signal(signal.SIGTERM)
+        t_end = time.monotonic() + STOP_TIMEOUT_S
+        for n in procs:
+            try:
+                n.proc.wait(timeout=max(0.1, t_end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.warning("%s did not stop in %.0f s: killing it", n.name, STOP_TIMEOUT_S)
+                n.proc.kill()
+                n.proc.wait()
+
+    def stop(self) -> None:
+        """Stop sync, let the last poses arrive, then stop the others (viewer/recorder last)."""
+        self.stopping = True
+        if self.monitor is not None:
+            self._sample_cpu()
+        if "sync" in self.nodes and self.nodes["sync"].proc is not None:
+            self._terminate(["sync"])
+            self.t_sync_stop = time.monotonic()
+            t_end = time.monotonic() + DRAIN_S
+            while self.monitor is not None and time.monotonic() < t_end and self.monitor.counts()[2] > 0:
+                time.sleep(POLL_S)
+        self._sample_cpu()
+        order = [n for n, p in self.nodes.items() if p.role in ("camera", "fusion")]
+        self._terminate(order)
+        self._terminate([n for n, p in self.nodes.items() if p.role in ("recorder", "viewer")])
+        if self.session is not None:
+            self.monitor.close()
+            self.session.close()
+            self.session = None
+
+    # ------------------------------------------------------------ statistics
+    def stats(self) -> dict:
+        m = self.monitor
+        trig, poses, no_pose = m.counts() if m else (0, 0, 0)
+        table = m.node_table() if m else {}
+        lat = percentiles(m.latencies_ms()) if m else percentiles([])
+        run_s = ((self.t_sync_stop or time.monotonic()) - self.t_sync_start) if self.t_sync_start else 0.0
+        missing_any = sum(1 for p in m.poses if p.cameras_missing) if m else 0
+        nodes = {}
+        for name, n in self.nodes.items():
+            st = table.get(name, {})
+            nodes[name] = {"role": n.role, "cpu_s": round(n.cpu_s, 3), "restarts": n.restarts,
+                           "drops": st.get("drops", 0), "decode_drops": st.get("decode_drops", 0),
+                           "fps": st.get("fps", 0.0), "processing_ms": st.get("processing_ms", 0.0)}
+        return {
+            "rig": self.rig_name, "source": self.cfg.source, "trigger_fps": self.trigger_fps,
+            "speed": "max" if self.cfg.speed is None else self.cfg.speed, "run_s": round(run_s, 3),
+            "frames_triggered": trig, "poses_published": poses, "frames_dropped": no_pose,
+            "node_drops": sum(v["drops"] for v in nodes.values()),
+            "decode_drops": sum(v["decode_drops"] for v in nodes.values()) + (m.decoder.total_drops if m else 0),
+            "poses_with_missing_cameras": missing_any,
+            "latency_ms": {k: round(v, 3) for k, v in lat.items()},
+            "cameras": list(self.rig.names),
+            "cpu_s": {name: v["cpu_s"] for name, v in nodes.items()},
+            "nodes": nodes, "log_dir": str(self.log_dir),
+        }
