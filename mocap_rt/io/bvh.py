@@ -351,6 +351,42 @@ def forward_kinematics(skeleton: BvhSkeleton, motion: np.ndarray,
     return np.concatenate([pos, end_pos], axis=1)
 
 
+def resample_motion(skeleton: BvhSkeleton, motion: np.ndarray, frame_time_s: float,
+                    times_s: np.ndarray) -> np.ndarray:
+    """Motion values at arbitrary times: rotations by slerp, positions linearly.
+
+    motion : (F, n_channels) sampled at ``k * frame_time_s``; times_s : (T,) seconds,
+    clamped to the clip. Returns (T, n_channels); Euler angles are re-extracted in each
+    joint's channel order, so bone lengths stay exact (unlike interpolating positions).
+    """
+    from scipy.spatial.transform import Slerp
+
+    motion = np.atleast_2d(np.asarray(motion, dtype=np.float64))
+    F = motion.shape[0]
+    src_t = np.arange(F) * float(frame_time_s)
+    t = np.clip(np.asarray(times_s, dtype=np.float64), 0.0, src_t[-1])
+    out = np.empty((t.size, motion.shape[1]))
+    starts = skeleton.channel_starts
+    for j, joint in enumerate(skeleton.joints):
+        s = int(starts[j])
+        rot_axes, rot_cols = [], []
+        for k, ch in enumerate(joint.channels):
+            if ch in POSITION_CHANNELS:
+                out[:, s + k] = np.interp(t, src_t, motion[:, s + k])
+            else:
+                rot_axes.append(ch[0])
+                rot_cols.append(s + k)
+        if rot_axes:
+            seq = "".join(rot_axes).upper()
+            if F == 1 or len(set(seq)) != 3:  # 1-2 rotation axes: interpolate the angles
+                for c in rot_cols:
+                    out[:, c] = np.interp(t, src_t, motion[:, c])
+                continue
+            rots = Rotation.from_euler(seq, motion[:, rot_cols], degrees=True)
+            out[:, rot_cols] = Slerp(src_t, rots)(t).as_euler(seq, degrees=True)
+    return out
+
+
 # ----------------------------------------------------------------------------- writing
 
 def _fmt(v: float) -> str:

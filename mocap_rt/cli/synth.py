@@ -1,0 +1,104 @@
+"""``mocap-rt synth``: render a studio recording with ground truth from a BVH clip."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT, e.g. 640x480, got {text!r}") from None
+    if w < 16 or h < 16:
+        raise argparse.ArgumentTypeError(f"size {text!r} is too small")
+    return w, h
+
+
+def _bgr(text: str) -> tuple[float, float, float]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != 3 or not all(0 <= v <= 255 for v in vals):
+        raise argparse.ArgumentTypeError(f"colour must be B,G,R in 0..255, got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "synth", help="render a multi-camera studio recording with ground truth from a BVH clip",
+        description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--motion", required=True, help="BVH clip (CMU, Bandai-Namco or MakeHuman skeleton)")
+    p.add_argument("--out", required=True, help="new recording directory")
+    p.add_argument("--rig", choices=("ring", "desktop"), default="ring",
+                   help="camera ring around the subject, or the 2-camera desktop rig (upper body)")
+    p.add_argument("--cameras", type=int, default=6, help="cameras on the ring")
+    p.add_argument("--size", type=_size, default=(640, 480), help="image size WIDTHxHEIGHT")
+    p.add_argument("--radius", type=float, default=3.0, help="ring radius, metres")
+    p.add_argument("--height", type=float, default=1.6, help="camera height, metres")
+    p.add_argument("--hfov", type=float, default=60.0, help="horizontal field of view, degrees")
+    p.add_argument("--fps", type=float, default=30.0, help="output frame rate (the clip is resampled)")
+    p.add_argument("--seconds", type=float, default=None, help="duration (default: the whole clip)")
+    p.add_argument("--start", type=float, default=0.0, help="start time in the clip, seconds")
+    p.add_argument("--seed", type=int, default=0, help="seed of noise, flicker and camera gains")
+    p.add_argument("--placement", choices=("centre", "first", "none"), default="centre",
+                   help="horizontal placement: centre the pelvis path, put the first frame at the origin, or keep")
+    p.add_argument("--noise", type=float, default=2.0, help="sensor noise sigma, grey levels")
+    p.add_argument("--flicker", type=float, default=0.0, help="global illumination flicker amplitude (0.05 = 5%%)")
+    p.add_argument("--gain-jitter", type=float, default=0.05, help="per-camera gain spread (fraction)")
+    p.add_argument("--wb-jitter", type=float, default=0.03, help="per-camera white-balance spread (fraction)")
+    p.add_argument("--no-shadows", action="store_true", help="do not cast the body's shadow on the floor")
+    p.add_argument("--ambient", type=float, default=None, help="ambient light level (default: the scene's)")
+    p.add_argument("--shoe-bgr", type=_bgr, default=None, help="shoe colour B,G,R 0..255")
+    p.add_argument("--codec", choices=("MJPG", "XVID", "mp4v", "FFV1"), default="MJPG", help="video codec")
+    p.add_argument("--jpeg-quality", type=int, default=95, help="MJPG quality (video compression)")
+    p.add_argument("--truth-masks", action=argparse.BooleanOptionalAction, default=True,
+                   help="store bit-packed person silhouettes in truth.npz")
+    p.add_argument("--threads", type=int, default=2, help="render threads")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from mocap_rt.studio.render import RenderConfig
+    from mocap_rt.studio.scene import StudioScene
+    from mocap_rt.studio.synth import make_rig, synthesize
+
+    motion = Path(args.motion)
+    if not motion.is_file():
+        raise FileNotFoundError(f"--motion: no such file {motion}")
+    if (Path(args.out) / "recording.toml").exists():
+        raise ValueError(f"--out: {args.out} already holds a recording; choose a new directory")
+    if args.fps <= 0 or args.cameras < 1:
+        raise ValueError("--fps must be > 0 and --cameras >= 1")
+    rig = make_rig(args.rig, args.cameras, args.size, args.radius, args.height, args.hfov)
+    albedo = {} if args.shoe_bgr is None else {"shoe": tuple(v / 255.0 for v in args.shoe_bgr)}
+    config = RenderConfig(noise_sigma_levels=args.noise, flicker_amplitude=args.flicker,
+                          gain_jitter=args.gain_jitter, white_balance_jitter=args.wb_jitter,
+                          shadows=not args.no_shadows, albedo_bgr=albedo)
+    scene = StudioScene()
+    if args.ambient is not None:
+        scene = dataclasses.replace(scene, ambient=args.ambient)
+    bar = None if args.no_progress else tqdm(unit="frame", desc="synth")
+
+    def progress(done: int) -> None:
+        if bar is not None:
+            bar.update(done - bar.n)
+
+    try:
+        stats = synthesize(motion, args.out, rig=rig, fps=args.fps, seconds=args.seconds, start_s=args.start,
+                           seed=args.seed, placement=args.placement, scene=scene, config=config,
+                           truth_masks=args.truth_masks, codec=args.codec, jpeg_quality=args.jpeg_quality,
+                           threads=args.threads, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    print(f"wrote {stats.out}: {stats.n_frames} frames x {len(rig)} cameras = {stats.n_images} images "
+          f"in {stats.total_s:.1f} s (render {stats.render_s:.1f} s, encode {stats.encode_s:.1f} s)")
+    return 0
