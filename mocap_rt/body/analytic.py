@@ -26,8 +26,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from mocap_rt.body.kinematics import angles_from_frames, forward_kinematics
+from mocap_rt.body.kinematics import euler_xyz_from_matrix, forward_kinematics
 from mocap_rt.body.skeleton import J, N_JOINTS, BodyModel
 
 C_HEAD, C_HAND_L, C_HAND_R, C_FOOT_L, C_FOOT_R, C_TORSO = range(6)
@@ -73,7 +74,7 @@ def body_axes(cues: np.ndarray, prev_right: np.ndarray | None = None, velocity: 
         if speed > config.walk_speed_mps:
             heading = vh / speed
             w = config.walk_weight * min(1.0, (speed - config.walk_speed_mps) / config.walk_speed_mps)
-            v += w * np.cross(heading, up)  # facing = velocity: right = forward x up
+            v += w * _cross(heading, up)  # facing = velocity: right = forward x up
     for vec, weight in ((feet, config.feet_weight), (hands, config.hands_weight)):
         if not np.isfinite(vec).all():
             continue
@@ -83,7 +84,7 @@ def body_axes(cues: np.ndarray, prev_right: np.ndarray | None = None, velocity: 
             # standing: the feet may be side by side or staggered, so the feet line gives
             # the pan modulo 90 degrees; take the candidate nearest the previous right axis
             vec = vec - up * (vec @ up)
-            cands = (vec, -vec, np.cross(up, vec), -np.cross(up, vec))
+            cands = (vec, -vec, _cross(up, vec), -_cross(up, vec))
             vec = max(cands, key=lambda c: float(c @ prev))
         v += weight * vec / max(np.linalg.norm(vec), 0.05)
     v = v - up * (v @ up)
@@ -91,8 +92,8 @@ def body_axes(cues: np.ndarray, prev_right: np.ndarray | None = None, velocity: 
     keep = config.pan_smoothing if heading is not None else config.still_pan_smoothing
     if prev_right is not None and keep > 0:
         right = _unit((1 - keep) * right + keep * prev, right)
-    right = _unit(right - up * (right @ up), np.cross(np.array([0.0, 1, 0]), up))
-    forward = np.cross(up, right)
+    right = _unit(right - up * (right @ up), _cross(np.array([0.0, 1, 0]), up))
+    forward = _cross(up, right)
     return np.column_stack([right, forward, up])
 
 
@@ -102,38 +103,124 @@ def pan_angle(axes: np.ndarray) -> float:
     return float(np.arctan2(-f[0], f[1]))
 
 
-def _two_link(root: np.ndarray, goal: np.ndarray, L1: float, L2: float,
-              pole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+@njit(cache=True, nogil=True)
+def _cross(a, b):
+    out = np.empty(3)
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _nunit(v, fallback):
+    n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if n > 1e-9 and np.isfinite(n):
+        return v / n
+    return fallback.copy()
+
+
+@njit(cache=True, nogil=True)
+def _two_link(root, goal, L1, L2, pole):
     """Middle joint and reached end of a 2-link chain (A.5 direction + clamped distance).
 
     The end always lies on the ray root -> goal, at the goal's distance clamped into
     [|L1 - L2|, L1 + L2]; the middle joint bends towards ``pole`` (3,) (unit).
     Returns (middle (3,), end (3,)) metres and the unit vectors u (root -> end) and w
-    (the bending direction, perpendicular to u), both (3,).
+    (the bending direction, perpendicular to u), all (3,).
     """
     d = goal - root
-    dist = float(np.linalg.norm(d))
-    u = _unit(d, -pole if abs(pole[2]) < 0.9 else np.array([0.0, 0, -1]))
+    dist = np.sqrt(d @ d)
+    down = np.array([0.0, 0.0, -1.0])
+    u = _nunit(d, -pole if abs(pole[2]) < 0.9 else down)
     lo = max(abs(L1 - L2), MIN_REACH_FRAC * (L1 + L2))
     hi = (L1 + L2) * (1 - 1e-9)
     L = min(max(dist, lo), hi)
-    cos_a = np.clip((L1 * L1 + L * L - L2 * L2) / (2 * L1 * L), -1.0, 1.0)  # law of cosines at the root
+    cos_a = min(1.0, max(-1.0, (L1 * L1 + L * L - L2 * L2) / (2 * L1 * L)))  # law of cosines at the root
     w = pole - u * (pole @ u)
-    w = _unit(w, _unit(np.cross(u, np.array([1.0, 0, 0])), np.array([0.0, 1, 0])))
+    w = _nunit(w, _nunit(_cross(u, np.array([1.0, 0.0, 0.0])), np.array([0.0, 1.0, 0.0])))
     mid = root + L1 * (cos_a * u + np.sqrt(1 - cos_a * cos_a) * w)
     return mid, root + L * u, u, w
 
 
-def _rot_about(axis: np.ndarray, angle: float, v: np.ndarray) -> np.ndarray:
-    axis = axis / np.linalg.norm(axis)
-    return v * np.cos(angle) + np.cross(axis, v) * np.sin(angle) + axis * (axis @ v) * (1 - np.cos(angle))
+@njit(cache=True, nogil=True)
+def _rot_about(axis, angle, v):
+    axis = axis / np.sqrt(axis @ axis)
+    c, s = np.cos(angle), np.sin(angle)
+    return v * c + _cross(axis, v) * s + axis * (axis @ v) * (1 - c)
 
 
-def _frame(z: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
-    z = _unit(z, np.array([0.0, 0, -1]))
+@njit(cache=True, nogil=True)
+def _frame(z, x_hint, out):
+    """Write into ``out`` (3, 3) the frame with Z along ``z`` and X nearest ``x_hint``."""
+    z = _nunit(z, np.array([0.0, 0.0, -1.0]))
     x = x_hint - z * (x_hint @ z)
-    x = _unit(x, _unit(np.cross(np.array([0.0, 1, 0]), z), np.array([1.0, 0, 0])))
-    return np.column_stack([x, np.cross(z, x), z])
+    x = _nunit(x, _nunit(_cross(np.array([0.0, 1.0, 0.0]), z), np.array([1.0, 0.0, 0.0])))
+    y = _cross(z, x)
+    for i in range(3):
+        out[i, 0], out[i, 1], out[i, 2] = x[i], y[i], z[i]
+
+
+@njit(cache=True, nogil=True)
+def _analytic(cues, axes, lengths, elbow_raise, knee_open, foot_rest, limb_joints, R):
+    """Fill the joint frames R (J, 3, 3); return the pelvis position (see analytic_pose)."""
+    trunk, sh_half, upper_len, fore_len, hip_half, thigh, shank, foot_len = lengths
+    right = axes[:, 0].copy()
+    forward = axes[:, 1].copy()
+    up = axes[:, 2].copy()
+    torso = cues[C_TORSO]
+    pelvis = torso - up * (trunk / 2)
+    neck = torso + up * (trunk / 2)
+    for j in range(4):  # pelvis, torso, neck, head
+        R[j] = axes
+    # knee -> foot centre with a straight ankle: shank + foot at rest (body frame)
+    eff1 = foot_len * foot_rest[1]
+    eff2 = -shank + foot_len * foot_rest[2]
+    L2_leg = np.sqrt(eff1 * eff1 + eff2 * eff2)
+    gamma = np.arctan2(eff1, -eff2)                   # foot centre ahead of the shank axis
+    beta = np.arctan2(foot_rest[1], -foot_rest[2])    # foot direction ahead of the shank
+    for s in range(2):
+        sx = -1.0 if s == 0 else 1.0
+        hand_c = C_HAND_L if s == 0 else C_HAND_R
+        foot_c = C_FOOT_L if s == 0 else C_FOOT_R
+        jsh, jel, jwr, jha, jhi, jkn, jan, jft = limb_joints[s]
+        # arm: shoulder -> elbow -> hand (hand collinear with the forearm at zero wrist angles)
+        shoulder = neck + right * (sx * sh_half)
+        pole = _rot_about(up, -sx * elbow_raise, -forward)
+        elbow, hand, u, w = _two_link(shoulder, cues[hand_c], upper_len, fore_len, pole)
+        x = _cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
+        _frame(elbow - shoulder, x, R[jsh])
+        _frame(hand - elbow, x, R[jel])
+        R[jwr] = R[jel]
+        R[jha] = R[jel]
+        # leg: hip -> knee -> foot centre; the foot is rigid on the shank (paper model)
+        hip = pelvis + right * (sx * hip_half)
+        pole = _rot_about(up, sx * knee_open, forward)
+        knee, foot, u, w = _two_link(hip, cues[foot_c], thigh, L2_leg, pole)
+        n = _cross(u, w)  # flexion axis (the body's right for a straight standing leg)
+        u2 = _nunit(foot - knee, -up)
+        _frame(knee - hip, n, R[jhi])
+        _frame(_rot_about(n, -gamma, u2), n, R[jkn])
+        _frame(_rot_about(n, beta - gamma, u2), n, R[jan])
+        R[jft] = R[jan]
+    return pelvis
+
+
+@njit(cache=True, nogil=True)
+def _angles_from_frames(parents, rest_local, dof, R, out):
+    for j in range(parents.shape[0]):
+        p = parents[j]
+        if p < 0:
+            M = rest_local[j].T @ R[j]
+        else:
+            M = (R[p] @ rest_local[j]).T @ R[j]
+        a = euler_xyz_from_matrix(M)
+        for k in range(3):
+            out[j, k] = a[k] if dof[j, k] else 0.0
+
+
+_LIMB_JOINTS = np.array([[J[f"{n}_{s}"] for n in ("shoulder", "elbow", "wrist", "hand", "hip", "knee", "ankle", "foot")]
+                         for s in ("l", "r")], dtype=np.int64)
 
 
 def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
@@ -144,41 +231,15 @@ def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
     axes : (3, 3) body frame from ``body_axes`` (columns right, forward, up).
     """
     L = model.lengths
+    lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
+                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
     R = np.empty((N_JOINTS, 3, 3))
-    right, forward, up = axes[:, 0], axes[:, 1], axes[:, 2]
-    torso = cues[C_TORSO]
-    pelvis = torso - up * (L.trunk_m / 2)
-    neck = torso + up * (L.trunk_m / 2)
-    for j in ("pelvis", "torso", "neck", "head"):
-        R[J[j]] = axes
-    foot_rest = model.rest_world[J["ankle_r"]][:, 2]            # ankle -> foot at rest (body frame)
-    for side, sx, hand_c, foot_c in (("l", -1.0, C_HAND_L, C_FOOT_L), ("r", 1.0, C_HAND_R, C_FOOT_R)):
-        # arm: shoulder -> elbow -> hand (hand collinear with the forearm at zero wrist angles)
-        shoulder = neck + right * (sx * L.shoulder_half_width_m)
-        pole = _rot_about(up, -sx * np.radians(config.elbow_raise_deg), -forward)
-        elbow, hand, u, w = _two_link(shoulder, cues[hand_c], L.upper_arm_m, L.forearm_m + L.hand_m, pole)
-        upper, fore = elbow - shoulder, hand - elbow
-        x = np.cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
-        R[J[f"shoulder_{side}"]] = _frame(upper, x)
-        R[J[f"elbow_{side}"]] = R[J[f"wrist_{side}"]] = R[J[f"hand_{side}"]] = _frame(fore, x)
-        # leg: hip -> knee -> foot centre; the foot is rigid on the shank (paper model)
-        hip = pelvis + right * (sx * L.hip_half_width_m)
-        shank_v = np.array([0.0, 0, -L.shank_m])                  # knee -> ankle, body frame at rest
-        foot_v = L.foot_m * foot_rest                             # ankle -> foot, body frame at rest
-        eff = shank_v + foot_v                                    # knee -> foot centre
-        L2 = float(np.linalg.norm(eff))
-        gamma = np.arctan2(eff[1], -eff[2])                       # foot centre ahead of the shank axis
-        pole = _rot_about(up, sx * np.radians(config.knee_open_deg), forward)
-        knee, foot, u, w = _two_link(hip, cues[foot_c], L.thigh_m, L2, pole)
-        n = np.cross(u, w)  # flexion axis (the body's right for a straight standing leg)
-        u2 = _unit(foot - knee, -up)
-        beta = np.arctan2(foot_rest[1], -foot_rest[2])           # foot direction ahead of the shank
-        shank_dir = _rot_about(n, -gamma, u2)
-        R[J[f"hip_{side}"]] = _frame(knee - hip, n)
-        R[J[f"knee_{side}"]] = _frame(shank_dir, n)
-        R[J[f"ankle_{side}"]] = R[J[f"foot_{side}"]] = _frame(_rot_about(n, beta - gamma, u2), n)
-    angles = angles_from_frames(model, R)
-    angles = np.where(model.dof, angles, 0.0)
+    foot_rest = np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2])
+    pelvis = _analytic(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
+                       lengths, np.radians(config.elbow_raise_deg), np.radians(config.knee_open_deg),
+                       foot_rest, _LIMB_JOINTS, R)
+    angles = np.empty((N_JOINTS, 3))
+    _angles_from_frames(model.parents, model.rest_local, model.dof, R, angles)
     return pelvis, angles
 
 

@@ -11,9 +11,9 @@ head, hands and feet carry a short End Site along their bone.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from numba import njit
 
-from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.kinematics import euler_xyz_from_matrix, forward_kinematics
 from mocap_rt.body.skeleton import N_JOINTS, BodyModel
 from mocap_rt.io.bvh import BvhJoint, BvhSkeleton
 from mocap_rt.names import JOINT_NAMES
@@ -39,17 +39,28 @@ def bvh_skeleton(model: BodyModel) -> BvhSkeleton:
     return BvhSkeleton(tuple(joints))
 
 
+@njit(cache=True, nogil=True)
+def _bvh_row(parents, rest_world, rot, root_pos, C, out):
+    J = parents.shape[0]
+    B = np.empty((J, 3, 3))
+    for j in range(J):
+        B[j] = C @ rot[j] @ rest_world[j].T @ C.T      # BVH-world rotation of joint j
+    p = C @ root_pos
+    out[0], out[1], out[2] = p[0], p[1], p[2]
+    for j in range(J):
+        local = B[j] if parents[j] < 0 else B[parents[j]].T @ B[j]
+        a = euler_xyz_from_matrix(local)
+        for k in range(3):
+            out[3 + 3 * j + k] = np.degrees(a[k])
+
+
 def bvh_frame(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """(n_channels,) float64 motion row for the pose (root metres, rotations degrees)."""
-    C = WORLD_TO_BVH
     _, rot = forward_kinematics(model, root_pos, angles)
-    B = C @ rot @ np.transpose(model.rest_world, (0, 2, 1)) @ C.T   # (J, 3, 3) BVH-world rotations
-    local = np.empty_like(B)
-    local[0] = B[0]
-    par = model.parents[1:]
-    local[1:] = np.transpose(B[par], (0, 2, 1)) @ B[1:]
-    eul = Rotation.from_matrix(local).as_euler("XYZ", degrees=True)   # (J, 3)
-    return np.concatenate([C @ np.asarray(root_pos, dtype=np.float64), eul.ravel()])
+    out = np.empty(3 + 3 * N_JOINTS)
+    _bvh_row(model.parents, np.ascontiguousarray(model.rest_world), rot,
+             np.ascontiguousarray(root_pos, dtype=np.float64).reshape(3), WORLD_TO_BVH, out)
+    return out
 
 
 def bvh_frames(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BoneLengths, body_model
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.views import CUE_RADII_M, frontal_pair, predict_views, triangulate_cues
+from mocap_rt.fusion.views import CUE_RADII_M, RigProjector, frontal_pair, predict_views, triangulate_cues
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
@@ -118,6 +118,7 @@ class BodyTracker:
         self.cameras = tuple(rig.cameras)
         self._names = list(rig.names)
         self._tri = RayTriangulator(self.cameras)
+        self._proj = RigProjector(self.cameras)
         self._centers = np.array([c.center for c in self.cameras])
         self.filter = CueFilter(N_CUES, config.filter)
         self._calib: list[np.ndarray] = []
@@ -156,7 +157,7 @@ class BodyTracker:
 
     def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6)."""
-        X, used, _ = triangulate_cues(self._tri, self.cameras, uv, w, self.config.max_reproj_px)
+        X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, self.config.max_reproj_px)
         if self.config.views == "pair" and self._pair is not None:
             a, b = self._pair
             wp = np.zeros_like(w)
@@ -255,6 +256,6 @@ class BodyTracker:
     def predict(self, frame: int) -> dict[str, CuePrediction]:
         """Predicted cues of every rig camera for ``frame`` (A.4)."""
         X = self.filter.predict_at(frame / self.config.fps)
-        xy, vis, rad = predict_views(self.cameras, X, CUE_RADII_M)
+        xy, vis, rad = predict_views(self._proj, X, CUE_RADII_M)
         return {name: CuePrediction(name, int(frame), xy[c], vis[c], rad[c])
                 for c, name in enumerate(self._names)}

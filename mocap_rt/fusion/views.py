@@ -27,6 +27,49 @@ from mocap_rt.geometry.ray_triangulator import RayTriangulator
 CUE_RADII_M = np.array([0.10, 0.05, 0.05, 0.06, 0.06, 0.15])
 
 
+class RigProjector:
+    """All cameras' projections at once (vectorised ``Camera.project``, same model).
+
+    ``project(X (N, 3)) -> (uv (C, N, 2) pixels NaN behind, depth (C, N) metres along
+    the optical axis, dist (C, N) metres from the centre)``.
+    """
+
+    def __init__(self, cameras: Sequence[Camera]) -> None:
+        self.R = np.stack([c.R for c in cameras])                    # (C, 3, 3)
+        self.t = np.stack([c.t for c in cameras])                    # (C, 3)
+        self.K = np.stack([c.K for c in cameras])                    # (C, 3, 3)
+        self.centers = np.stack([c.center for c in cameras])         # (C, 3)
+        self.size = np.array([c.size for c in cameras], dtype=np.float64)  # (C, 2)
+        self.dist = np.zeros((len(cameras), 8))
+        for i, c in enumerate(cameras):
+            self.dist[i, : c.dist.size] = c.dist
+
+    def project(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        pc = np.einsum("cij,nj->cni", self.R, X) + self.t[:, None, :]   # (C, N, 3)
+        z = pc[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = pc[..., 0] / z, pc[..., 1] / z
+        k1, k2, p1, p2, k3, k4, k5, k6 = (self.dist[:, i:i + 1] for i in range(8))
+        r2 = x * x + y * y
+        r4, r6 = r2 * r2, r2 * r2 * r2
+        radial = (1 + k1 * r2 + k2 * r4 + k3 * r6) / (1 + k4 * r2 + k5 * r4 + k6 * r6)
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        K = self.K
+        u = K[:, 0, 0, None] * xd + K[:, 0, 1, None] * yd + K[:, 0, 2, None]
+        v = K[:, 1, 1, None] * yd + K[:, 1, 2, None]
+        uv = np.stack([u, v], axis=-1)
+        uv[~(z > 1e-9)] = np.nan
+        dist = np.linalg.norm(X[None, :, :] - self.centers[:, None, :], axis=-1)
+        return uv, z, dist
+
+    def in_image(self, uv: np.ndarray) -> np.ndarray:
+        """(C, N) bool: inside the image (pixel centres at integers, half-pixel border)."""
+        w, h = self.size[:, 0:1], self.size[:, 1:2]
+        u, v = uv[..., 0], uv[..., 1]
+        return (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
+
+
 def camera_azimuth_order(centers: np.ndarray, target: np.ndarray) -> np.ndarray:
     """(C,) camera indices sorted by azimuth of their centres (C, 3) around ``target`` (3,)."""
     d = centers[:, :2] - target[:2]
@@ -68,7 +111,7 @@ def frontal_pair(centers: np.ndarray, foot_l: np.ndarray, foot_r: np.ndarray, ta
     return best
 
 
-def triangulate_cues(tri: RayTriangulator, cameras: Sequence[Camera], uv: np.ndarray, weights: np.ndarray,
+def triangulate_cues(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, weights: np.ndarray,
                      max_reproj_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Weighted N-view triangulation with reprojection outlier rejection.
 
@@ -78,34 +121,28 @@ def triangulate_cues(tri: RayTriangulator, cameras: Sequence[Camera], uv: np.nda
     w = np.where(np.isfinite(uv).all(-1), weights, 0.0)
     used = w > 0
     X = tri(uv, w)
-    for _ in range(max(0, len(cameras) - 2)):
-        res = _residuals(cameras, X, uv, used)
-        worst = np.nanargmax(np.where(used, res, -1.0), axis=0)          # (N,)
-        worst_err = res[worst, np.arange(uv.shape[1])]
+    n = uv.shape[1]
+    for _ in range(max(0, uv.shape[0] - 2)):
+        res = _residuals(proj, X, uv, used)
+        worst = np.argmax(np.where(used & np.isfinite(res), res, -1.0), axis=0)   # (N,)
+        worst_err = res[worst, np.arange(n)]
         drop = (used.sum(axis=0) >= 3) & np.isfinite(worst_err) & (worst_err > max_reproj_px)
         if not drop.any():
-            break
+            return X, used, res
         used[worst[drop], np.flatnonzero(drop)] = False
         w = np.where(used, w, 0.0)
         X = tri(uv, w)
-    res = _residuals(cameras, X, uv, used)
-    return X, used, res
+    return X, used, _residuals(proj, X, uv, used)
 
 
-def _residuals(cameras: Sequence[Camera], X: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
-    out = np.full(used.shape, np.nan)
-    ok = np.isfinite(X).all(axis=1)
-    if not ok.any():
-        return out
-    for c, cam in enumerate(cameras):
-        m = ok & used[c]
-        if m.any():
-            proj, front = cam.project(X[m])
-            out[c, m] = np.where(front, np.linalg.norm(proj - uv[c, m], axis=1), np.inf)
-    return out
+def _residuals(proj: RigProjector, X: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:
+    p, z, _ = proj.project(np.where(np.isfinite(X), X, 0.0))
+    r = np.linalg.norm(p - uv, axis=-1)
+    r = np.where(z > 1e-9, r, np.inf)
+    return np.where(used & np.isfinite(X).all(axis=1)[None, :], r, np.nan)
 
 
-def predict_views(cameras: Sequence[Camera], X: np.ndarray, radii_m: np.ndarray = CUE_RADII_M
+def predict_views(proj: RigProjector, X: np.ndarray, radii_m: np.ndarray = CUE_RADII_M
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Predicted 2D cues per camera with Z-buffer visibility (A.4).
 
@@ -113,25 +150,17 @@ def predict_views(cameras: Sequence[Camera], X: np.ndarray, radii_m: np.ndarray 
     Returns ``xy (C, N, 2)`` pixels (NaN where unknown or behind), ``visible (C, N)`` bool,
     ``radius_px (C, N)``.
     """
-    C, N = len(cameras), X.shape[0]
-    xy = np.full((C, N, 2), np.nan)
-    vis = np.zeros((C, N), dtype=bool)
-    rad = np.full((C, N), np.nan)
-    ok = np.isfinite(X).all(axis=1)
-    if not ok.any():
-        return xy, vis, rad
-    for c, cam in enumerate(cameras):
-        uv, front = cam.project(X[ok])
-        depth = np.linalg.norm(X[ok] - cam.center, axis=1)
-        f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
-        r = f * radii_m[ok] / np.maximum(depth, 1e-6)
-        idx = np.flatnonzero(ok)
-        xy[c, idx] = np.where(front[:, None], uv, np.nan)
-        rad[c, idx] = np.where(front, r, np.nan)
-        inside = front & cam.in_image(uv)
-        # Z-buffer: hidden if the centre lies inside the disc of a nearer cue
-        d2 = np.sum((uv[:, None, :] - uv[None, :, :]) ** 2, axis=-1)    # (M, M)
-        nearer = depth[None, :] < depth[:, None]                          # [i, k]: k nearer than i
-        covered = (d2 < r[None, :] ** 2) & nearer & front[None, :]
-        vis[c, idx] = inside & ~covered.any(axis=1)
+    ok = np.isfinite(X).all(axis=1)                                       # (N,)
+    uv, z, dist = proj.project(np.where(ok[:, None], X, 0.0))
+    front = (z > 1e-9) & ok[None, :]
+    f = 0.5 * (proj.K[:, 0, 0] + proj.K[:, 1, 1])
+    rad = np.where(front, f[:, None] * radii_m[None, :] / np.maximum(z, 1e-6), np.nan)
+    xy = np.where(front[..., None], uv, np.nan)
+    inside = front & proj.in_image(xy)
+    # Z-buffer on the distance from the camera centre: hidden when the centre lies
+    # inside the disc of a nearer cue
+    d2 = np.sum((xy[:, :, None, :] - xy[:, None, :, :]) ** 2, axis=-1)  # (C, N, N) [c, i, k]
+    nearer = dist[:, None, :] < dist[:, :, None]                         # k nearer than i
+    covered = (d2 < rad[:, None, :] ** 2) & nearer & front[:, None, :]
+    vis = inside & ~covered.any(axis=2)
     return xy, vis, rad
