@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 MIN_MARKERS_FOR_POSE = 3
 GPA_MAX_ITER = 50
-GPA_REL_TOL = 1e-10  # relative change of the objective that ends the alternation
+GPA_REL_TOL = 1e-9  # relative change of the objective that ends the alternation
 MIN_OFF_LINE_FRAC = 0.15  # step D: third marker's distance from the line of the first two, / their distance
 
 
@@ -62,23 +62,23 @@ def absolute_orientation(target: np.ndarray, source: np.ndarray, weights: np.nda
     wsum = w.sum(axis=1)  # (F,)
     ok = (valid.sum(axis=1) >= MIN_MARKERS_FOR_POSE) & (wsum > 0)
     wn = w / np.where(wsum > 0, wsum, 1.0)[:, None]  # (F, k) normalised weights
-    mu_x = np.einsum("fk,fkd->fd", wn, x)  # (F, 3)
-    mu_y = np.einsum("fk,fkd->fd", wn, y)
+    mu_x = np.matmul(wn[:, None, :], x)[:, 0]  # (F, 3)
+    mu_y = np.matmul(wn[:, None, :], y)[:, 0]
     xc = x - mu_x[:, None]
     yc = y - mu_y[:, None]
-    cov = np.einsum("fk,fka,fkb->fab", wn, yc, xc)  # (F, 3, 3) Sigma_xy of Umeyama eq. 38
+    cov = np.matmul((yc * wn[..., None]).transpose(0, 2, 1), xc)  # (F, 3, 3) Sigma_xy of Umeyama eq. 38
     u, d, vt = np.linalg.svd(cov)
     sign = np.sign(np.linalg.det(u) * np.linalg.det(vt))
     sign[sign == 0] = 1.0
     s = np.ones((n_frames, 3))
     s[:, 2] = sign  # reflection fix: S = diag(1, 1, det(U) det(V))
-    rot = np.einsum("fab,fb,fbc->fac", u, s, vt)
+    rot = np.matmul(u * s[:, None, :], vt)
     if similarity:
-        var_x = np.einsum("fk,fkd,fkd->f", wn, xc, xc)
-        scale = np.einsum("fd,fd->f", d, s) / np.where(var_x > 0, var_x, np.nan)
+        var_x = np.sum(wn * np.sum(xc * xc, axis=2), axis=1)
+        scale = np.sum(d * s, axis=1) / np.where(var_x > 0, var_x, np.nan)
     else:
         scale = np.ones(n_frames)
-    trans = mu_y - scale[:, None] * np.einsum("fab,fb->fa", rot, mu_x)
+    trans = mu_y - scale[:, None] * np.matmul(rot, mu_x[..., None])[..., 0]
     scale = np.where(ok, scale, np.nan)
     rot[~ok] = np.nan
     trans[~ok] = np.nan
@@ -88,14 +88,13 @@ def absolute_orientation(target: np.ndarray, source: np.ndarray, weights: np.nda
 def apply_pose(scale: np.ndarray, rot: np.ndarray, trans: np.ndarray, local: np.ndarray) -> np.ndarray:
     """World points c_i R_i p + t_i.  local (k, 3) or (F, k, 3) -> (F, k, 3)."""
     local = np.asarray(local, dtype=np.float64)
-    if local.ndim == 2:
-        return scale[:, None, None] * np.einsum("fab,kb->fka", rot, local) + trans[:, None, :]
-    return scale[:, None, None] * np.einsum("fab,fkb->fka", rot, local) + trans[:, None, :]
+    # (F, k, 3) = local @ R^T per frame
+    return scale[:, None, None] * np.matmul(local, rot.transpose(0, 2, 1)) + trans[:, None, :]
 
 
 def to_local(scale: np.ndarray, rot: np.ndarray, trans: np.ndarray, world: np.ndarray) -> np.ndarray:
     """Inverse of :func:`apply_pose`: (F, k, 3) world points -> (F, k, 3) local points."""
-    return np.einsum("fba,fkb->fka", rot, world - trans[:, None, :]) / scale[:, None, None]
+    return np.matmul(world - trans[:, None, :], rot) / scale[:, None, None]
 
 
 @dataclass(frozen=True)
@@ -162,6 +161,12 @@ def fit_rigid_segment(markers: np.ndarray, similarity: bool = False, max_iter: i
     for it in range(1, max_iter + 1):
         c, r, t = absolute_orientation(x, z, similarity=similarity)
         has = np.isfinite(c)
+        # objective at the current (template, poses): the alternation never increases it
+        d2 = np.sum((x - apply_pose(c, r, t, z)) ** 2, axis=2)
+        err = float(np.sum(np.where(seen & np.isfinite(d2), d2, 0.0)))
+        if prev - err <= rel_tol * max(err, 1e-300):
+            break
+        prev = err
         # template update: z_j = sum_i c_i R_i^T (x_ij - t_i) / sum_i c_i^2 over frames seeing j
         w = (seen & has[:, None]).astype(np.float64)  # (F, k)
         cc = np.where(has, c, 0.0)
@@ -173,11 +178,6 @@ def fit_rigid_segment(markers: np.ndarray, similarity: bool = False, max_iter: i
         z -= z.mean(axis=0)
         if similarity:  # fix the scale gauge: mean per-frame scale 1
             z *= np.mean(c[has])
-        fitted = apply_pose(*absolute_orientation(x, z, similarity=similarity), z)
-        err = np.nansum(np.where(seen, np.sum((x - fitted) ** 2, axis=2), 0.0))
-        if prev - err <= rel_tol * max(prev if np.isfinite(prev) else err, 1e-300):
-            break
-        prev = err
     c, r, t = absolute_orientation(x, z, similarity=similarity)
     corrected = apply_pose(c, r, t, z)
     d2 = np.sum((x - corrected) ** 2, axis=2)  # (F, k), NaN where unseen/no pose

@@ -11,10 +11,10 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from mocap_rt.markers.io import MarkerData
 from mocap_rt.markers.joint_centres import METHODS, JointCentreFit, PreparedSegment, prepare_segment
-from mocap_rt.markers.rigid import absolute_orientation
 from mocap_rt.markers.segments import SegmentSet
 
 log = logging.getLogger(__name__)
@@ -66,26 +66,18 @@ class TrialJointCentres:
 LOW_ROM_DEG = 20.0  # below this relative rotation the centre is poorly determined
 
 
-def relative_rotation_range_deg(parent: np.ndarray, child: np.ndarray) -> float:
+def relative_rotation_range_deg(rot_parent: np.ndarray, rot_child: np.ndarray) -> float:
     """95th percentile angle (deg) of the child's rotation relative to the parent, about its mean.
 
-    parent, child : (F, k, 3) markers.  A joint that hardly moves (say < 20 deg) has no
-    well-defined functional centre: every method's answer is then dominated by noise.
+    rot_parent, rot_child : (F, 3, 3) segment rotations (NaN where no pose).  A joint that
+    hardly moves (say < 20 deg) has no well-defined functional centre: every method's
+    answer is then dominated by noise.
     """
-    _, rp, _ = absolute_orientation(parent, parent[_first_full(parent)])
-    _, rc, _ = absolute_orientation(child, child[_first_full(child)])
-    ok = np.isfinite(rp[:, 0, 0]) & np.isfinite(rc[:, 0, 0])
+    ok = np.isfinite(rot_parent[:, 0, 0]) & np.isfinite(rot_child[:, 0, 0])
     if ok.sum() < 2:
         return 0.0
-    from scipy.spatial.transform import Rotation
-
-    rel = Rotation.from_matrix(np.einsum("fba,fbc->fac", rp[ok], rc[ok]))
+    rel = Rotation.from_matrix(np.matmul(rot_parent[ok].transpose(0, 2, 1), rot_child[ok]))
     return float(np.degrees(np.percentile((rel * rel.mean().inv()).magnitude(), 95)))
-
-
-def _first_full(points: np.ndarray) -> int:
-    full = np.flatnonzero(np.all(np.isfinite(points), axis=(1, 2)))
-    return int(full[0]) if full.size else int(np.argmax(np.isfinite(points[..., 0]).sum(axis=1)))
 
 
 def joint_centres_for_trial(data: MarkerData, segset: SegmentSet, method: str = "patent", rigid: bool = True,
@@ -115,7 +107,7 @@ def joint_centres_for_trial(data: MarkerData, segset: SegmentSet, method: str = 
             continue
         fits[joint.name] = fit
         centres[:, k] = fit.centre
-        rom[joint.name] = relative_rotation_range_deg(prepared[joint.parent].points, prepared[joint.child].points)
+        rom[joint.name] = relative_rotation_range_deg(prepared[joint.parent].rotation, prepared[joint.child].rotation)
         if rom[joint.name] < LOW_ROM_DEG:
             log.warning("joint %s moves only %.0f deg in this trial: its centre is poorly determined",
                         joint.name, rom[joint.name])
