@@ -56,7 +56,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nodes.launcher import Launcher, RunConfig
+    from nodes.launcher import Launcher, RunConfig, _json_safe
     from nodes.sources import parse_source
 
     kind, value = parse_source(args.source)
@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
           f"node logs in {launcher.log_dir}", file=sys.stderr)
     stats = launcher.run()
     summary = {k: stats[k] for k in ("frames_triggered", "poses_published", "frames_dropped", "latency_ms")}
-    print(json.dumps(summary))
+    print(json.dumps(_json_safe(summary)))
     return 0
 
 

@@ -123,11 +123,36 @@ class FrameGatherer:
         return min((pf.deadline_ns for pf in self.pending.values()), default=None)
 
 
-def make_tracker(rig):
-    """D's ``BodyTracker`` with its default config."""
-    from mocap_rt.fusion.tracker import BodyTracker
+# a standing person's cues (head, hand_l, hand_r, foot_l, foot_r, torso), metres, world
+WARM_UP_CUES_M = np.array([[0.0, 0.0, 1.7], [0.35, 0.0, 1.0], [-0.35, 0.0, 1.0],
+                           [0.12, 0.0, 0.05], [-0.12, 0.0, 0.05], [0.0, 0.0, 1.25]])
+WARM_UP_FRAMES = 3
+WARM_UP_COV_PX2 = 4.0
 
-    return BodyTracker(rig)
+
+def make_tracker(rig, fps: float = 30.0):
+    """D's ``BodyTracker`` with its default config at the stream's frame rate."""
+    from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+
+    return BodyTracker(rig, FusionConfig(fps=fps))
+
+
+def warm_up(rig, fps: float = 30.0) -> float:
+    """Run a throw-away tracker on synthetic cues so every numba kernel is compiled/loaded
+    before the first real frame (the first step otherwise takes seconds). Returns seconds."""
+    from mocap_rt.cues import N_CUES, CameraCues
+
+    t0 = time.perf_counter()
+    tracker = make_tracker(rig, fps)
+    for f in range(WARM_UP_FRAMES):
+        cues = {}
+        for cam in rig.cameras:
+            uv, _ = cam.project(WARM_UP_CUES_M + [0.01 * f, 0.0, 0.0])
+            cues[cam.name] = CameraCues(cam.name, f, uv, np.tile(np.eye(2) * WARM_UP_COV_PX2, (N_CUES, 1, 1)),
+                                        np.full(N_CUES, 50.0), np.ones(N_CUES))
+        tracker.step(f, cues)
+        tracker.predict(f + 1)
+    return time.perf_counter() - t0
 
 
 def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[str], pred_pubs: dict,
@@ -216,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     p = base_parser(__doc__.splitlines()[0], "fusion")
     p.add_argument("--deadline-frac", type=float, default=DEFAULT_DEADLINE_FRAC,
                    help="wait for late cameras at most this fraction of the frame period")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frame rate of the frame ids (default rig metadata fps or 30)")
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     if not 0.0 < args.deadline_frac <= 1.0:
@@ -226,7 +253,9 @@ def main(argv: list[str] | None = None) -> int:
         rt = NodeRuntime(session, keys, args.node, "fusion")
         rt.install_signal_handlers()
         rt.publish_status("starting", force=True)
-        tracker = make_tracker(rig)
+        fps = args.fps or float(rig.metadata.get("fps", 30.0))
+        log.info("fusion: warm-up took %.2f s", warm_up(rig, fps))
+        tracker = make_tracker(rig, fps)
         rt.publish_status("ready", force=True)
         run_fusion(session, keys, rig, tracker, rt, args.deadline_frac)
         rt.publish_status("stopping", force=True)

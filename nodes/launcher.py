@@ -13,6 +13,7 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
+import math
 import os
 import signal
 import socket
@@ -72,6 +73,17 @@ def _die_with_parent() -> None:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
     except OSError:
         pass
+
+
+def _json_safe(x):
+    """NaN/inf -> None so the stats file is strict JSON."""
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
 
 
 @dataclass
@@ -159,7 +171,8 @@ class Launcher:
                                                   "--fps", str(self.base_fps)] + (["--raw"] if live else [])))
         if cfg.rerun:
             plan.append(("viewer", "viewer", ["-m", "nodes.viewer", "--rerun", cfg.rerun]))
-        plan.append(("fusion", "fusion", ["-m", "nodes.fusion_node", "--deadline-frac", str(cfg.deadline_frac)]))
+        plan.append(("fusion", "fusion", ["-m", "nodes.fusion_node", "--deadline-frac", str(cfg.deadline_frac),
+                                          "--fps", str(self.base_fps)]))
         for cam, src in self._worker_sources().items():
             argv = ["-m", "nodes.camera_worker", "--camera", cam, "--source", src, "--fps", str(self.base_fps),
                     "--preview-every", str(preview)]
@@ -310,7 +323,7 @@ class Launcher:
         stats = self.stats()
         if self.cfg.stats:
             Path(self.cfg.stats).parent.mkdir(parents=True, exist_ok=True)
-            Path(self.cfg.stats).write_text(json.dumps(stats, indent=2, default=float))
+            Path(self.cfg.stats).write_text(json.dumps(_json_safe(stats), indent=2))
         return stats
 
     def _terminate(self, names: list[str]) -> None:

@@ -153,11 +153,11 @@ class RawStream:
         self.writer.close()
 
 
-def bvh_skeleton_for(rig):
+def bvh_skeleton_for(rig, fps: float):
     """The BVH skeleton the fusion node's tracker writes motion for."""
     from nodes.fusion_node import make_tracker
 
-    return make_tracker(rig).bvh_skeleton
+    return make_tracker(rig, fps).bvh_skeleton
 
 
 def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool, rt: NodeRuntime) -> None:
@@ -166,7 +166,7 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
 
     out_dir.mkdir(parents=True, exist_ok=True)
     poses = PoseLog(out_dir / POSES_NPZ, list(rig.names))
-    bvh = BvhStreamWriter(out_dir / POSES_BVH, bvh_skeleton_for(rig), 1.0 / fps)
+    bvh = BvhStreamWriter(out_dir / POSES_BVH, bvh_skeleton_for(rig, fps), 1.0 / fps)
     stream = RawStream(out_dir / STREAM_DIR, rig, fps) if raw else None
     inbox: queue.SimpleQueue = queue.SimpleQueue()
 
