@@ -41,8 +41,8 @@ class ChangeThresholds:
     """Thresholds of the change test (see the module docstring)."""
 
     cd_sigmas: float = 3.5           # colour distortion threshold in noise sigmas
-    cd_min_grey: float = 9.0         # ... and at least this many grey levels
-    alpha_min: float = 0.45          # darker than this ratio is not a shadow: foreground
+    cd_min_grey: float = 5.0         # ... and at least this many grey levels
+    alpha_min: float = 0.35          # darker than this ratio is not a shadow: foreground
     alpha_max: float = 1.35          # brighter than this is not flicker: foreground
 
 
@@ -101,9 +101,8 @@ class BackgroundModel:
 
         rate : blend weight per call in [0, 1] (e.g. 0.01 at 30 fps ~ 3 s time constant).
         """
-        img = np.asarray(image_bgr, dtype=np.float32)
-        keep = ~np.asarray(foreground, dtype=bool)
-        self.mean_bgr[keep] += rate * (img[keep] - self.mean_bgr[keep])
+        keep = (~np.asarray(foreground, dtype=bool)).view(np.uint8)
+        cv2.accumulateWeighted(np.asarray(image_bgr), self.mean_bgr, float(rate), mask=keep)
         self._derived = None
 
 

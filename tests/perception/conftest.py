@@ -8,6 +8,7 @@ global flicker. Returns the image, the truth mask and the truth blob centres.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -17,7 +18,7 @@ import pytest
 SKIN_RGB = np.array([224, 172, 140])        # a typical light skin tone (R, G, B)
 SHOE_RGB = np.array([150, 40, 35])          # dark red shoes (R, G, B)
 SHIRT_BGR = (150, 90, 40)                   # blue shirt
-TROUSERS_BGR = (60, 85, 55)                 # dark green trousers
+TROUSERS_BGR = (90, 40, 75)                 # dark purple trousers
 
 
 @dataclass
@@ -34,7 +35,9 @@ def shade(rgb: np.ndarray, grey: float) -> tuple[int, int, int]:
     return int(c[2]), int(c[1]), int(c[0])
 
 
+@functools.lru_cache(maxsize=8)
 def make_background(size=(640, 480), n=5, seed=0, noise=2.0) -> np.ndarray:
+    """(n, H, W, 3) uint8 BGR empty-scene frames (cached: do not modify)."""
     w, h = size
     rng = np.random.default_rng(seed)
     yy, xx = np.mgrid[0:h, 0:w]
@@ -42,7 +45,9 @@ def make_background(size=(640, 480), n=5, seed=0, noise=2.0) -> np.ndarray:
     base[yy > 0.7 * h] = (90, 110, 120)                       # floor
     texture = rng.normal(0, 6, (h // 8 + 1, w // 8 + 1, 3)).repeat(8, 0).repeat(8, 1)[:h, :w]
     base = base + texture
-    return np.clip(base[None] + rng.normal(0, noise, (n, h, w, 3)), 0, 255).astype(np.uint8)
+    out = np.clip(base[None] + rng.normal(0, noise, (n, h, w, 3)), 0, 255).astype(np.uint8)
+    out.flags.writeable = False
+    return out
 
 
 def draw_person(canvas: np.ndarray, mask: np.ndarray, centres: dict, *, cx: float, scale: float = 1.0,

@@ -1,0 +1,124 @@
+"""CameraPerceiver end to end on synthetic scenes with exact truth; torso cue; perceive CLI."""
+
+import cv2
+import numpy as np
+import pytest
+from conftest import make_scene
+
+from mocap_rt.cues import CameraCues, CuePrediction
+from mocap_rt.geometry.rig import ring_rig
+from mocap_rt.names import CUE_NAMES
+from mocap_rt.perception.pipeline import CameraPerceiver, PerceptionConfig, load_perception_config
+from mocap_rt.perception.torso import torso_point
+
+CAM = ring_rig()[0]
+
+
+def test_cues_of_a_synthetic_person_with_shadow_and_flicker():
+    sc = make_scene(shadow=0.5, flicker=1.05)
+    p = CameraPerceiver(CAM, sc.background)
+    first = p.process(sc.image, 6)
+    assert np.all(first.confidence[:5] == 0.5)       # acquired without a prediction
+    cues = p.process(sc.image, 7)
+    assert isinstance(cues, CameraCues) and cues.camera == CAM.name and cues.frame == 7
+    for k, name in enumerate(CUE_NAMES[:5]):
+        assert np.hypot(*(cues.xy[k] - sc.centres[name])) < 0.5, name
+        assert cues.confidence[k] > 0.9
+        assert np.all(np.linalg.eigvalsh(cues.cov[k]) > 0)
+    assert cues.found.all()
+    assert {"silhouette", "colour", "blobs", "torso", "total"} <= set(cues.timings_ms)
+    # serialisable
+    back = CameraCues.from_dict(cues.to_dict())
+    np.testing.assert_array_equal(back.xy, cues.xy)
+
+
+def test_tracking_a_moving_person_across_roi_updates():
+    bg = None
+    p = None
+    for f, cx in enumerate(np.linspace(200, 440, 25)):
+        sc = make_scene(cx=float(cx), hand_l=(cx + 95, 200 - f), hand_r=(cx - 95, 200 + f))
+        if p is None:
+            p = CameraPerceiver(CAM, sc.background)
+        cues = p.process(sc.image, f)
+        for k, name in enumerate(CUE_NAMES[:5]):
+            assert np.hypot(*(cues.xy[k] - sc.centres[name])) < 0.6, (f, name)
+
+
+def test_empty_scene_gives_no_cues_and_person_is_found_again():
+    sc = make_scene()
+    p = CameraPerceiver(CAM, sc.background)
+    empty = p.process(sc.background[1], 0)
+    assert empty.bbox == (0, 0, 0, 0) and not empty.found.any()
+    assert p.last_silhouette is not None and not p.last_silhouette.any()
+    cues = p.process(sc.image, 1)
+    assert cues.found.all()
+
+
+def test_prediction_drives_labelling():
+    sc = make_scene()
+    p = CameraPerceiver(CAM, sc.background)
+    xy = np.array([sc.centres[n] for n in CUE_NAMES[:5]] + [(np.nan, np.nan)], float)
+    # predictions with swapped hands: the perceiver follows the prediction's identities
+    xy[[1, 2]] = xy[[2, 1]]
+    pred = CuePrediction(CAM.name, 0, xy, np.ones(6, bool), np.full(6, 10.0))
+    cues = p.process(sc.image, 0, pred)
+    np.testing.assert_allclose(cues.xy[1], sc.centres["hand_r"], atol=0.5)
+    np.testing.assert_allclose(cues.xy[2], sc.centres["hand_l"], atol=0.5)
+
+
+def test_bad_inputs_are_clear_errors(tmp_path):
+    sc = make_scene(size=(320, 240))
+    with pytest.raises(ValueError, match="size"):
+        CameraPerceiver(CAM, sc.background)
+    p = CameraPerceiver(ring_rig(size=(320, 240))[0], sc.background)
+    with pytest.raises(ValueError, match="uint8"):
+        p.process(sc.image.astype(np.float32), 0)
+    cfg = tmp_path / "p.toml"
+    cfg.write_text("roi_margin_px = 5\n[skin_blobs]\nmin_area_px = 3.0\n")
+    c = load_perception_config(cfg)
+    assert c.roi_margin_px == 5 and c.skin_blobs.min_area_px == 3.0 and c.shoe_blobs == PerceptionConfig().shoe_blobs
+    cfg.write_text("roi_margn_px = 5\n")
+    with pytest.raises(ValueError, match=r"p\.toml.*roi_margn_px"):
+        load_perception_config(cfg)
+
+
+def test_torso_ridge_centre_of_a_trunk_shape():
+    sil = np.zeros((300, 200), np.uint8)
+    cv2.rectangle(sil, (70, 60), (130, 200), 255, -1)      # trunk 61 x 141, centre (100, 130)
+    cv2.circle(sil, (100, 35), 22, 255, -1)                # head
+    cv2.line(sil, (70, 70), (10, 150), 255, 12)            # arm
+    cv2.rectangle(sil, (75, 200), (95, 290), 255, -1)      # legs
+    cv2.rectangle(sil, (105, 200), (125, 290), 255, -1)
+    for step in (1, 2):
+        xy, cov, thick = torso_point(sil, step=step)
+        assert abs(xy[0] - 100) < 1.0 + step
+        assert abs(xy[1] - 130) < 4.0 + step
+        assert thick == pytest.approx(30.5, abs=1.5 * step)
+    assert np.isnan(torso_point(np.zeros((5, 5), np.uint8))[0]).all()
+
+
+@pytest.mark.slow
+def test_perceive_cli_on_a_small_recording(tmp_path):
+    from mocap_rt.cli import main
+    from mocap_rt.io.recording import RecordingWriter
+
+    rig = ring_rig(n_cameras=2, size=(320, 240))
+    frames = []
+    with RecordingWriter(tmp_path / "rec", rig, fps=30.0, codec="FFV1") as w:
+        for cam in rig:
+            w.write_backgrounds(cam.name, make_scene(size=(320, 240), scale=0.5).background)
+        for f in range(6):
+            scs = [make_scene(size=(320, 240), scale=0.5, cx=120.0 + 4 * f + 20 * c) for c in range(2)]
+            frames.append(scs)
+            w.write_frame(f, [s.image for s in scs], [f / 30.0] * 2)
+    assert main(["perceive", str(tmp_path / "rec"), "--out", str(tmp_path / "cues.npz"), "--no-progress"]) == 0
+    z = np.load(tmp_path / "cues.npz")
+    assert list(z["camera_names"]) == ["cam_1", "cam_2"] and list(z["cue_names"]) == list(CUE_NAMES)
+    assert z["cues_2d"].shape == (2, 6, 6, 2) and z["confidence"].shape == (2, 6, 6)
+    assert z["ms_per_frame"].shape == (2, 6) and np.isfinite(z["ms_per_frame"]).all()
+    np.testing.assert_array_equal(z["frames"], np.arange(6))
+    for c in range(2):
+        for f in range(6):
+            for k, name in enumerate(CUE_NAMES[:5]):
+                assert np.hypot(*(z["cues_2d"][c, f, k] - frames[f][c].centres[name])) < 1.0
+    assert main(["perceive", str(tmp_path / "nope"), "--out", str(tmp_path / "x.npz")]) == 2
