@@ -43,12 +43,13 @@ from mocap_rt.fusion.views import CUE_RADII_M, RigProjector, frontal_pair, predi
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
-from mocap_rt.names import CUE_NAMES
+from mocap_rt.names import CUE_JOINT_INDEX, CUE_NAMES
 
 log = logging.getLogger(__name__)
 
 N_CUES = len(CUE_NAMES)
 C_TORSO = CUE_NAMES.index("torso")
+C_HEAD = CUE_NAMES.index("head")
 C_FOOT_L, C_FOOT_R = CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")
 _EFFECTOR_CUES = np.array([CUE_NAMES.index(n) for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
@@ -93,6 +94,10 @@ class FusionResult:
     cameras_used : names of the cameras that contributed a cue.
     root_pos (3,), angles (20, 3) radians: the body model pose; pan_rad: the heading.
     pair : the frontal pair's camera names in "pair" mode, else ().
+    cues_ik : (6, 3) the cues the IK used (measured, or predicted where missing);
+    axes : (3, 3) body frame (right, forward, up) or None.
+    joint_valid : (20,) bool, False for joints of a limb whose end cue was missing (that
+        limb is at the rest pose) and for all joints when there was no pose.
     """
 
     frame: int
@@ -107,6 +112,22 @@ class FusionResult:
     pan_rad: float = float("nan")
     pair: tuple[str, ...] = ()
     cues_ik: np.ndarray = field(default_factory=lambda: np.full((N_CUES, 3), np.nan))
+    axes: np.ndarray | None = None
+    joint_valid: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS, dtype=bool))
+
+
+# joints that depend on each hand/foot cue (the limb beyond the shoulder/hip)
+_LIMB_OF_CUE = {CUE_NAMES.index(f"{k}_{s}"): [J[f"{n}_{s}"] for n in names]
+                for s in ("l", "r") for k, names in (("hand", ("elbow", "wrist", "hand")),
+                                                     ("foot", ("knee", "ankle", "foot")))}
+
+
+def _joint_validity(have: np.ndarray) -> np.ndarray:
+    valid = np.ones(N_JOINTS, dtype=bool)
+    for c, joints in _LIMB_OF_CUE.items():
+        if not have[c]:
+            valid[joints] = False
+    return valid
 
 
 class BodyTracker:
@@ -135,6 +156,7 @@ class BodyTracker:
         self.model = body_model(lengths, "paper")
         self.model_full = body_model(lengths, "full")
         self._bvh = bvh_skeleton(self.model)
+        self._rest_cues = self.model.rest_positions()[list(CUE_JOINT_INDEX)]
 
     @property
     def bvh_skeleton(self) -> BvhSkeleton:
@@ -171,20 +193,47 @@ class BodyTracker:
 
     # ------------------------------------------------------------------ body
     def solve_pose(self, cues_ik: np.ndarray, velocity: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """Body pose from six 3D cues (6, 3) (all finite): (root (3,), angles (J, 3), joints (J, 3), pan)."""
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Body pose from six 3D cues (6, 3) (all finite), updating the pan state.
+
+        Returns (root (3,), angles (J, 3) radians, joints (J, 3) metres, axes (3, 3)).
+        """
         axes = body_axes(cues_ik, self._right, velocity, self.config.analytic)
         self._right = axes[:, 0]
+        root, angles, joints = self.solve_with_axes(cues_ik, axes)
+        return root, angles, joints, axes
+
+    def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
+        """Cues (6, 3) with missing hands/feet put at the rest pose (arms hanging, legs straight).
+
+        Head and torso must be present. The rest pose is placed with the body axes at the torso.
+        """
+        out = cues_ik.copy()
+        missing = ~np.isfinite(out).all(axis=1)
+        if missing.any():
+            rest = self._rest_cues
+            out[missing] = out[C_TORSO] + (rest[missing] - rest[C_TORSO]) @ axes.T
+        return out
+
+    def solve_with_axes(self, cues_ik: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Stateless IK for given body axes: (root (3,), angles (J, 3), joints (J, 3)).
+
+        Missing hand/foot cues (NaN rows) are filled from the rest pose (``fill_missing``).
+        """
+        cues_ik = self.fill_missing(cues_ik, axes)
         root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic)
+        model = self.model
         if self.config.ik == "ccd":
             res = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
                             reference=angles, config=self.config.ccd)
             angles = res.angles
             model = self.model_full
-        else:
-            model = self.model
         joints = forward_kinematics(model, root, angles)[0]
-        return root, angles, joints, pan_angle(axes)
+        return root, angles, joints
+
+    def bvh_row(self, root: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """BVH motion row of a pose of this tracker's model (both presets share the hierarchy)."""
+        return bvh_frame(self.model_full if self.config.ik == "ccd" else self.model, root, angles)
 
     def _maybe_calibrate(self, X: np.ndarray) -> None:
         if self.calibrated:
@@ -221,18 +270,21 @@ class BodyTracker:
         t2 = time.perf_counter()
         timings["filter"] = (t2 - t1) * 1e3
         joints = np.full((N_JOINTS, 3), np.nan)
-        root, angles, pan = np.full(3, np.nan), np.zeros((N_JOINTS, 3)), float("nan")
-        if np.isfinite(cues_ik).all():
+        joint_valid = np.zeros(N_JOINTS, dtype=bool)
+        root, angles, pan, axes = np.full(3, np.nan), np.zeros((N_JOINTS, 3)), float("nan"), None
+        have = np.isfinite(cues_ik).all(axis=1)
+        if have[C_TORSO] and have[C_HEAD]:
             v = self.filter.vel[C_TORSO]
             a = self.config.velocity_smoothing
             self._vel = v.copy() if self._vel is None else a * self._vel + (1 - a) * v
-            root, angles, joints, pan = self.solve_pose(cues_ik, self._vel)
+            root, angles, joints, axes = self.solve_pose(cues_ik, self._vel)
+            pan = pan_angle(axes)
             self._last_pose = (root, angles)
+            joint_valid = _joint_validity(have)
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
         if self._last_pose is not None:
-            row = bvh_frame(self.model, *self._last_pose) if self.config.ik == "analytic" else \
-                bvh_frame(self.model_full, *self._last_pose)
+            row = self.bvh_row(*self._last_pose)
         else:
             row = bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3)))
         self._update_pair(cues_ik)
@@ -240,7 +292,7 @@ class BodyTracker:
         cams_used = tuple(self._names[c] for c in range(len(self._names)) if used[c].any())
         pair = tuple(self._names[i] for i in self._pair) if (self.config.views == "pair" and self._pair) else ()
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
-                            root, angles, pan, pair, cues_ik)
+                            root, angles, pan, pair, cues_ik, axes, joint_valid)
 
     def _update_pair(self, cues_ik: np.ndarray) -> None:
         if self.config.views != "pair":

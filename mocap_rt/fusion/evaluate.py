@@ -1,0 +1,107 @@
+"""Accuracy of fused cues and joints against a studio ``truth.npz``, and truth-driven cues.
+
+``truth`` is the dict of a recording's ``truth.npz`` (keys documented with the
+recording format): ``frames`` (F,), ``joints`` (F, J, 3) m, ``cues`` (F, 6, 3) m,
+``camera_names`` (C,), ``cues_2d`` (C, F, 6, 2) px, ``cue_visibility`` (C, F, 6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap_rt.cues import CameraCues
+from mocap_rt.names import CUE_NAMES, JOINT_NAMES
+
+# A truth cue counts as seen by a camera when at least this fraction of it is visible.
+MIN_VISIBLE_FRAC = 0.5
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """Errors in metres. cue_err (F, 6) and joint_err (F, J): NaN where not estimated."""
+
+    cue_err: np.ndarray
+    joint_err: np.ndarray
+
+    @property
+    def cue_median_mm(self) -> float:
+        return float(np.nanmedian(self.cue_err) * 1e3)
+
+    @property
+    def cue_p95_mm(self) -> float:
+        return float(np.nanpercentile(self.cue_err, 95) * 1e3)
+
+    @property
+    def mpjpe_mm(self) -> float:
+        return float(np.nanmean(self.joint_err) * 1e3)
+
+    @property
+    def cue_coverage(self) -> float:
+        """Fraction of (frame, cue) estimated."""
+        return float(np.isfinite(self.cue_err).mean())
+
+    @property
+    def joint_coverage(self) -> float:
+        return float(np.isfinite(self.joint_err).mean())
+
+    def per_joint_mm(self) -> dict[str, float]:
+        return {n: float(np.nanmean(self.joint_err[:, j]) * 1e3) if np.isfinite(self.joint_err[:, j]).any()
+                else float("nan") for j, n in enumerate(JOINT_NAMES)}
+
+    def per_cue_mm(self) -> dict[str, tuple[float, float]]:
+        out = {}
+        for c, n in enumerate(CUE_NAMES):
+            e = self.cue_err[:, c]
+            e = e[np.isfinite(e)]
+            out[n] = (float(np.median(e) * 1e3), float(np.percentile(e, 95) * 1e3)) if e.size else (np.nan, np.nan)
+        return out
+
+    def summary(self) -> str:
+        lines = [f"cue 3D error: median {self.cue_median_mm:.1f} mm, p95 {self.cue_p95_mm:.1f} mm "
+                 f"({100 * self.cue_coverage:.0f}% of cue-frames); MPJPE {self.mpjpe_mm:.1f} mm "
+                 f"({100 * self.joint_coverage:.0f}% of frames)"]
+        lines.append("per cue (median/p95 mm): " + ", ".join(
+            f"{n} {m:.0f}/{p:.0f}" for n, (m, p) in self.per_cue_mm().items()))
+        lines.append("per joint (mean mm): " + ", ".join(f"{n} {v:.0f}" for n, v in self.per_joint_mm().items()))
+        return "\n".join(lines)
+
+
+def align_truth(truth: dict, frames: np.ndarray) -> np.ndarray:
+    """(F,) indices into the truth arrays for our ``frames`` (ValueError if one is missing)."""
+    tf = np.asarray(truth["frames"]).astype(np.int64)
+    pos = {int(f): i for i, f in enumerate(tf)}
+    try:
+        return np.array([pos[int(f)] for f in frames], dtype=np.int64)
+    except KeyError as exc:
+        raise ValueError(f"truth.npz has no frame {exc.args[0]}") from None
+
+
+def accuracy(truth: dict, frames: np.ndarray, cues: np.ndarray, joints: np.ndarray) -> Accuracy:
+    """Errors of cues (F, 6, 3) and joints (F, J, 3), metres, world, for ``frames`` (F,)."""
+    idx = align_truth(truth, frames)
+    names = [str(n) for n in truth.get("joint_names", JOINT_NAMES)]
+    order = [names.index(n) for n in JOINT_NAMES]
+    tj = np.asarray(truth["joints"])[idx][:, order]
+    tc = np.asarray(truth["cues"])[idx]
+    return Accuracy(np.linalg.norm(cues - tc, axis=-1), np.linalg.norm(joints - tj, axis=-1))
+
+
+def truth_camera_cues(truth: dict, camera_names: list[str], t_index: int, frame: int,
+                      noise_px: float, rng: np.random.Generator) -> dict[str, CameraCues]:
+    """The truth's 2D cues of one frame as ``CameraCues`` (+ Gaussian pixel noise).
+
+    A cue is present where its visible fraction is >= MIN_VISIBLE_FRAC; confidence 1.
+    """
+    tnames = [str(n) for n in truth["camera_names"]]
+    out = {}
+    for name in camera_names:
+        c = tnames.index(name)
+        xy = np.asarray(truth["cues_2d"][c, t_index], dtype=np.float64).copy()
+        vis = np.asarray(truth["cue_visibility"][c, t_index]) >= MIN_VISIBLE_FRAC
+        xy += rng.normal(0.0, noise_px, xy.shape) if noise_px > 0 else 0.0
+        xy[~vis] = np.nan
+        cov = np.where(vis[:, None, None], np.eye(2) * max(noise_px, 0.5) ** 2, np.nan)
+        out[name] = CameraCues(name, frame, xy, cov, np.where(vis, 100.0, 0.0), vis.astype(np.float64))
+    return out

@@ -1,0 +1,151 @@
+"""Offline processing of a recorded multi-view stream, no transport (``mocap-rt process``).
+
+Per frame: perception of every camera (``CameraPerceiver``, fed with the tracker's
+prediction), then ``BodyTracker.step``. At the end, frames solved before the bone
+lengths were estimated are re-solved with the final lengths, so the whole clip uses one
+skeleton. Writes ``OUT_DIR/poses.bvh`` and ``OUT_DIR/poses.npz``:
+
+* ``joints`` (F, J, 3) float64 metres, world; NaN before the first full pose;
+* ``joint_names`` (J,) str (the truth's names), ``frames`` (F,) int;
+* ``cues`` (F, 6, 3) the per-frame triangulated cues (NaN = not reconstructed),
+  ``cue_names``, ``cue_valid`` (F, 6) bool, ``joint_valid`` (F, J) bool (False where a
+  limb's cue was missing and the limb was put at rest), ``pan_rad`` (F,), ``bone_lengths`` (11,)
+  and ``bone_length_names``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from mocap_rt.fusion.evaluate import Accuracy, accuracy, align_truth, truth_camera_cues
+from mocap_rt.fusion.tracker import BodyTracker, FusionConfig, FusionResult
+from mocap_rt.names import CUE_NAMES, JOINT_NAMES
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ProcessOutput:
+    """What ``process_recording`` computed (arrays as in ``poses.npz``)."""
+
+    frames: np.ndarray
+    joints: np.ndarray
+    cues: np.ndarray
+    cue_valid: np.ndarray
+    joint_valid: np.ndarray
+    bvh_rows: np.ndarray
+    pan_rad: np.ndarray
+    timings_ms: dict = field(default_factory=dict)
+    accuracy: Accuracy | None = None
+
+
+def _resolve_early(tracker: BodyTracker, results: list[FusionResult], first_calibrated: int | None) -> None:
+    """Re-solve frames before calibration with the final bone lengths (in place)."""
+    if tracker.config.bone_lengths is not None or not tracker.calibrated:
+        return
+    stop = len(results) if first_calibrated is None else first_calibrated
+    last = None
+    for r in results[:stop]:
+        if np.isfinite(r.cues_ik).all() and r.axes is not None:
+            r.root_pos, r.angles, r.joints = tracker.solve_with_axes(r.cues_ik, r.axes)
+            last = (r.root_pos, r.angles)
+        if last is not None:
+            r.bvh_frame = tracker.bvh_row(*last)
+
+
+def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool = True) -> list[FusionResult]:
+    """Step ``tracker`` over ``frame_cues(frame_index, predictions) -> (frame, cues)``."""
+    from tqdm import tqdm
+
+    results: list[FusionResult] = []
+    first_cal = None
+    predictions = None
+    for i in tqdm(range(n_frames), disable=not progress, unit="frame", desc="process"):
+        frame, cues = frame_cues(i, predictions)
+        was = tracker.calibrated
+        results.append(tracker.step(frame, cues))
+        if tracker.calibrated and not was:
+            first_cal = len(results)
+        predictions = tracker.predict(frame + 1)
+    _resolve_early(tracker, results, first_cal)
+    return results
+
+
+def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionConfig | None = None,
+                      perception_config=None, max_frames: int | None = None, truth_2d: bool = False,
+                      noise_px: float = 1.0, seed: int = 0, progress: bool = True) -> ProcessOutput:
+    """Perception + fusion + IK over a recording; writes poses.bvh and poses.npz.
+
+    config : fusion settings (default: ``FusionConfig(fps=recording fps)``).
+    truth_2d : skip perception and feed the truth's 2D cues (+ ``noise_px`` Gaussian
+        noise), to measure fusion apart from perception (studio recordings only).
+    """
+    from mocap_rt.io.bvh import write_bvh
+    from mocap_rt.io.recording import Recording
+
+    rec = Recording(rec_dir)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    config = replace(config or FusionConfig(), fps=float(rec.fps))
+    tracker = BodyTracker(rec.rig, config)
+    names = list(rec.rig.names)
+    n = rec.n_frames if max_frames is None else min(rec.n_frames, int(max_frames))
+    frames_idx = np.asarray(rec.frames)[:n]
+    truth = rec.truth
+    t_perc: list[float] = []
+    if truth_2d:
+        if truth is None:
+            raise ValueError(f"{rec_dir}: --truth-2d needs truth.npz (studio recordings only)")
+        tidx = align_truth(truth, frames_idx)
+        rng = np.random.default_rng(seed)
+
+        def frame_cues(i, predictions):
+            return int(frames_idx[i]), truth_camera_cues(truth, names, int(tidx[i]), int(frames_idx[i]), noise_px, rng)
+    else:
+        from mocap_rt.perception.pipeline import CameraPerceiver, PerceptionConfig
+
+        pc = perception_config or PerceptionConfig()
+        perceivers = {nm: CameraPerceiver(rec.rig[nm], rec.backgrounds(nm), pc) for nm in names}
+        iters = {nm: rec.iter_frames(nm) for nm in names}
+
+        def frame_cues(i, predictions):
+            cues = {}
+            frame = int(frames_idx[i])
+            t0 = time.perf_counter()
+            for nm in names:
+                fi, img = next(iters[nm])
+                pred = None if predictions is None else predictions.get(nm)
+                cues[nm] = perceivers[nm].process(img, int(fi), pred)
+            t_perc.append((time.perf_counter() - t0) * 1e3)
+            return frame, cues
+
+    results = run_tracker(tracker, frame_cues, n, progress)
+    out = ProcessOutput(
+        frames=np.array([r.frame for r in results], dtype=np.int64),
+        joints=np.array([r.joints for r in results]),
+        cues=np.array([r.cues_3d for r in results]),
+        cue_valid=np.array([r.cue_valid for r in results]),
+        joint_valid=np.array([r.joint_valid for r in results]),
+        bvh_rows=np.array([r.bvh_frame for r in results]),
+        pan_rad=np.array([r.pan_rad for r in results]),
+    )
+    fusion_ms = np.array([r.timings_ms["total"] for r in results])
+    out.timings_ms = {"fusion_median": float(np.median(fusion_ms)) if len(fusion_ms) else float("nan")}
+    if t_perc:
+        out.timings_ms["perception_6cam_median"] = float(np.median(t_perc))
+    lengths = tracker.lengths
+    write_bvh(out_dir / "poses.bvh", tracker.bvh_skeleton, out.bvh_rows, 1.0 / config.fps)
+    np.savez_compressed(out_dir / "poses.npz", joints=out.joints, joint_names=np.array(JOINT_NAMES),
+                        frames=out.frames, cues=out.cues, cue_names=np.array(CUE_NAMES),
+                        cue_valid=out.cue_valid, joint_valid=out.joint_valid, pan_rad=out.pan_rad,
+                        bone_lengths=np.array(list(asdict(lengths).values())),
+                        bone_length_names=np.array(list(asdict(lengths).keys())))
+    if truth is not None:
+        out.accuracy = accuracy(truth, out.frames, out.cues, np.where(out.joint_valid[..., None], out.joints, np.nan))
+    rec.close()
+    return out
