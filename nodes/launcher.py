@@ -272,6 +272,14 @@ class Launcher:
         self._spawn(self.nodes["sync"])
         self.t_sync_start = time.monotonic()
 
+    def supervise_for(self, seconds: float) -> None:
+        """Keep supervising (restarts, CPU samples) for ``seconds`` (tests, scripts)."""
+        t_end = time.monotonic() + seconds
+        while time.monotonic() < t_end and not self.stopping:
+            self.supervise()
+            self._sample_cpu()
+            time.sleep(POLL_S)
+
     def done(self) -> bool:
         """True once the run should end (duration passed or the replay was played once)."""
         if self.t_sync_start is None:

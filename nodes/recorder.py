@@ -2,6 +2,8 @@
 
 Outputs in ``--out DIR``:
 
+(a second recorder run in the same directory writes ``poses_001.*``, ``stream_001`` ...)
+
 * ``poses.bvh`` — ``BvhStreamWriter`` on the tracker's skeleton, flushed every second;
 * ``poses.npz`` — every pose so far (see ``PoseLog``), rewritten atomically every
   ``SNAPSHOT_PERIOD_S`` (write to a temporary file, then rename);
@@ -33,8 +35,6 @@ log = logging.getLogger(__name__)
 
 SNAPSHOT_PERIOD_S = 1.0        # NPZ snapshot period: the most a crash can lose
 RAW_GATHER_S = 1.0             # wait this long for every camera's image of a frame
-POSES_NPZ = "poses.npz"
-POSES_BVH = "poses.bvh"
 STREAM_DIR = "stream"
 
 
@@ -153,6 +153,18 @@ class RawStream:
         self.writer.close()
 
 
+def output_paths(out_dir: Path) -> tuple[Path, Path, Path]:
+    """(poses.npz, poses.bvh, stream/) in ``out_dir``; when a previous run (or a recorder
+    that crashed and was restarted) left files there, new names ``poses_001.npz`` ... are
+    used so that nothing already recorded is ever overwritten."""
+    for i in range(10_000):
+        sfx = "" if i == 0 else f"_{i:03d}"
+        paths = (out_dir / f"poses{sfx}.npz", out_dir / f"poses{sfx}.bvh", out_dir / f"{STREAM_DIR}{sfx}")
+        if not any(p.exists() for p in paths):
+            return paths
+    raise FileExistsError(f"{out_dir}: too many recordings already")
+
+
 def bvh_skeleton_for(rig, fps: float):
     """The BVH skeleton the fusion node's tracker writes motion for."""
     from nodes.fusion_node import make_tracker
@@ -165,9 +177,11 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
     from mocap_rt.io.bvh import BvhStreamWriter
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    poses = PoseLog(out_dir / POSES_NPZ, list(rig.names))
-    bvh = BvhStreamWriter(out_dir / POSES_BVH, bvh_skeleton_for(rig, fps), 1.0 / fps)
-    stream = RawStream(out_dir / STREAM_DIR, rig, fps) if raw else None
+    npz_path, bvh_path, stream_path = output_paths(out_dir)
+    poses = PoseLog(npz_path, list(rig.names))
+    bvh = BvhStreamWriter(bvh_path, bvh_skeleton_for(rig, fps), 1.0 / fps)
+    stream = RawStream(stream_path, rig, fps) if raw else None
+    log.info("recorder: writing %s, %s%s", npz_path, bvh_path, f", {stream_path}" if raw else "")
     inbox: queue.SimpleQueue = queue.SimpleQueue()
 
     def on_pose(sample) -> None:

@@ -1,0 +1,296 @@
+"""Node building blocks without processes: schedule, gatherer, grabber, slots, viewer maths, pose log."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from mocap_rt.cues import CameraCues
+from nodes.camera_worker import PredictionBox, TriggerSlot
+from nodes.fusion_node import FrameGatherer
+from nodes.messages import Cues, Keys, Pose, Trigger
+from nodes.monitor import percentiles
+from nodes.recorder import PoseLog, output_paths
+from nodes.runtime import NodeRuntime, RateMeter
+from nodes.sources import FakeDevice, Grabber, LiveSource, parse_source
+from nodes.sync import Schedule, run_sync
+from nodes.viewer import ellipse_points, parse_rerun, skeleton_strips
+
+MS = 1_000_000
+
+
+# ------------------------------------------------------------------ sync schedule
+def test_schedule_is_absolute_and_exact():
+    period = round(1e9 / 30)                      # 33_333_333 ns: not exact for 30 fps
+    s = Schedule(10_000, period)
+    k = 10_000_000                                # ~3.9 days of frames
+    assert s.due(k) == 10_000 + k * period        # integer maths: no accumulated error
+    # a relative schedule (t += period in float seconds) drifts; the absolute one does not
+    t = 10_000 / 1e9
+    for _ in range(100_000):
+        t += period / 1e9
+    assert abs(t * 1e9 - s.due(100_000)) > 0     # float accumulation is off ...
+    assert s.due(100_000) - s.due(0) == 100_000 * period   # ... the schedule is exact
+    assert s.slot(10_000 + 5 * period - 1) == 4
+    assert s.slot(10_000 + 5 * period) == 5
+    assert s.slot(0) == 0
+    with pytest.raises(ValueError):
+        Schedule(0, 0)
+
+
+class FakePublisher:
+    def __init__(self, sink):
+        self.sink = sink
+
+    def put(self, payload):
+        self.sink.append((time.monotonic_ns(), payload))
+
+    def undeclare(self):
+        pass
+
+
+class FakeSession:
+    """Enough of a zenoh.Session for the node loops: publishers record what they put."""
+
+    def __init__(self):
+        self.puts: dict[str, list] = {}
+
+    def declare_publisher(self, key, **kw):
+        return FakePublisher(self.puts.setdefault(key, []))
+
+    def declare_subscriber(self, key, cb):
+        return FakePublisher([])
+
+
+def test_run_sync_never_triggers_early_and_keeps_ids_tied_to_time():
+    sess, keys = FakeSession(), Keys("r")
+    rt = NodeRuntime(sess, keys, "sync", "sync")
+    t_before = time.monotonic_ns()          # the schedule's t0 is not earlier than this
+    sent = run_sync(sess, keys, 200.0, 40, 7, rt)
+    puts = sess.puts[keys.trigger]
+    assert sent == len(puts) == 40
+    trig = [Trigger.from_msgpack(p) for _, p in puts]
+    frames = [t.frame for t in trig]
+    assert frames[0] == 7 and all(b > a for a, b in zip(frames, frames[1:]))
+    period = round(1e9 / 200)
+    assert all(t.period_ns == period for t in trig)
+    # frame k is never sent before its slot t0 + (k - 7) * period (absolute schedule)
+    assert all(t.t_mono_ns >= t_before + (t.frame - 7) * period for t in trig)
+    # skipped slots (a late process) are counted, so ids + drops cover every slot
+    assert frames[-1] - 7 + 1 == sent + rt.drops
+
+
+# ------------------------------------------------------------------ fusion gathering
+def _cues(cam, frame, t_trig):
+    return Cues("r", CameraCues.empty(cam, frame), t_trig, t_trig, 1.0)
+
+
+def test_gatherer_waits_for_live_cameras_then_deadline():
+    g = FrameGatherer(["a", "b", "c"], deadline_frac=0.5, liveness_s=0.1)
+    period = 40 * MS
+    g.on_trigger(Trigger("r", 0, 1000 * MS, 0, period))
+    now = 1001 * MS
+    for cam in "abc":
+        g.on_cues(_cues(cam, 0, 1000 * MS), now)
+    ready = g.ready(now)                                  # all three live cameras answered
+    assert [pf.frame for pf in ready] == [0] and set(ready[0].cues) == {"a", "b", "c"}
+    # frame 1: only a and b answer; c is still live -> wait ...
+    g.on_trigger(Trigger("r", 1, 1040 * MS, 0, period))
+    g.on_cues(_cues("a", 1, 1040 * MS), 1041 * MS)
+    g.on_cues(_cues("b", 1, 1040 * MS), 1041 * MS)
+    assert g.ready(1042 * MS) == []
+    # ... until the deadline t_trigger + 0.5 * period
+    assert g.next_deadline_ns() == 1060 * MS
+    ready = g.ready(1060 * MS)
+    assert [pf.frame for pf in ready] == [1] and set(ready[0].cues) == {"a", "b"}
+    # c's late answer is counted, not used
+    g.on_cues(_cues("c", 1, 1040 * MS), 1061 * MS)
+    assert g.late_cues == 1
+    # once c has been silent longer than liveness, frames complete without waiting for it
+    g.on_trigger(Trigger("r", 2, 1200 * MS, 0, period))
+    g.on_cues(_cues("a", 2, 1200 * MS), 1201 * MS)
+    g.on_cues(_cues("b", 2, 1200 * MS), 1201 * MS)
+    assert [pf.frame for pf in g.ready(1201 * MS)] == [2]
+    assert g.live(1201 * MS) == {"a", "b"}
+
+
+def test_gatherer_drops_empty_frames_and_overtaken_frames():
+    g = FrameGatherer(["a"], deadline_frac=0.5, liveness_s=1.0)
+    period = 10 * MS
+    g.on_trigger(Trigger("r", 0, 0, 0, period))          # nobody answers frame 0
+    g.on_trigger(Trigger("r", 1, 10 * MS, 0, period))
+    g.on_cues(_cues("a", 1, 10 * MS), 11 * MS)
+    ready = g.ready(11 * MS)
+    assert [pf.frame for pf in ready] == [1]              # frame 0 (no cues) overtaken
+    assert g.frames_dropped == 1
+    g.on_cues(_cues("a", 0, 0), 12 * MS)                   # too late for frame 0
+    assert g.late_cues == 1
+    g.on_cues(_cues("zzz", 2, 0), 12 * MS)                 # not a rig camera: ignored
+    assert 2 not in g.pending
+
+
+# ------------------------------------------------------------------ grabber / fake device
+def _pattern(i: int) -> np.ndarray:
+    img = np.zeros((8, 8, 3), np.uint8)
+    img[0, 0] = [i % 256, (i // 256) % 256, 7]
+    return img
+
+
+def test_grabber_serves_the_newest_frame_of_a_real_time_device():
+    dev = FakeDevice(_pattern, fps=200.0)
+    grab = Grabber(dev)
+    try:
+        g0 = grab.latest()
+        seqs, stamps = [g0.seq], [g0.t_mono_ns]
+        for _ in range(5):
+            time.sleep(0.03)                               # a slow consumer: ~6 device frames pass
+            g = grab.latest(after_seq=seqs[-1])
+            # the image is the one the device made for that sequence number
+            assert g.image[0, 0, 0] == g.seq % 256 and g.image[0, 0, 1] == (g.seq // 256) % 256
+            seqs.append(g.seq)
+            stamps.append(g.t_mono_ns)
+        assert all(b > a for a, b in zip(seqs, seqs[1:]))
+        assert all(b > a for a, b in zip(stamps, stamps[1:]))
+        # frames were skipped (only the newest is kept) and counted as overwritten
+        assert seqs[-1] - seqs[0] > len(seqs)
+        assert grab.overwritten >= seqs[-1] - seqs[0] - len(seqs)
+    finally:
+        grab.close()
+
+
+def test_live_source_backgrounds_are_distinct_consecutive_frames():
+    src = LiveSource(FakeDevice(_pattern, fps=300.0), "cam", n_backgrounds=4)
+    try:
+        bg = src.backgrounds()
+        assert bg.shape == (4, 8, 8, 3)
+        ids = [int(b[0, 0, 0]) + 256 * int(b[0, 0, 1]) for b in bg]
+        assert len(set(ids)) == 4 and ids == sorted(ids)
+        g = src.grab(123)
+        assert g.seq >= ids[-1]                             # the newest frame, never an older one
+    finally:
+        src.close()
+
+
+def test_grabber_times_out_without_frames():
+    class Dead:
+        def read(self):
+            time.sleep(0.01)
+            return False, None
+
+        def release(self):
+            pass
+
+    grab = Grabber(Dead())
+    try:
+        with pytest.raises(TimeoutError):
+            grab.latest(timeout_s=0.1)
+        assert grab.failures > 0
+    finally:
+        grab.close()
+
+
+def test_parse_source():
+    assert parse_source("replay:/x/y") == ("replay", "/x/y")
+    assert parse_source("v4l2:/dev/video0") == ("v4l2", "/dev/video0")
+    for bad in ("replay:", "usb:/dev/x", "/dev/video0"):
+        with pytest.raises(ValueError):
+            parse_source(bad)
+
+
+# ------------------------------------------------------------------ worker slots
+def test_trigger_slot_keeps_newest_and_counts_overwritten():
+    slot = TriggerSlot()
+    for f in range(5):
+        slot.put(Trigger("r", f, f, f, 1))
+    assert slot.take(0.01).frame == 4
+    assert slot.overwritten == 4
+    assert slot.take(0.01) is None
+    th = threading.Timer(0.05, lambda: slot.put(Trigger("r", 9, 9, 9, 1)))
+    th.start()
+    assert slot.take(2.0).frame == 9
+
+
+def test_prediction_box_keeps_recent_frames():
+    from mocap_rt.cues import CuePrediction
+    box = PredictionBox()
+    for f in range(20):
+        box.put(CuePrediction("c", f, np.zeros((6, 2)), np.ones(6, bool), np.ones(6)))
+    assert box.get(19).frame == 19 and box.get(0) is None
+
+
+# ------------------------------------------------------------------ small helpers
+def test_rate_meter_counts_over_window():
+    m = RateMeter(window_s=1.0)
+    for i in range(11):
+        m.add(2.0 + i, now=100.0 + 0.1 * i)                # 10 intervals in 1 s
+    assert m.fps(now=101.0) == pytest.approx(10.0)
+    assert m.median_ms() == pytest.approx(7.0)
+    assert m.fps(now=105.0) == 0.0                         # all out of the window
+
+
+def test_percentiles_match_numpy():
+    v = np.random.default_rng(1).exponential(5.0, 1000)
+    p = percentiles(v)
+    assert p["p99"] == pytest.approx(np.percentile(v, 99)) and p["max"] == v.max()
+    assert np.isnan(percentiles([])["p50"])
+
+
+def test_ellipse_points_lie_on_the_sigma_contour():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        A = rng.normal(size=(2, 2))
+        cov = A @ A.T + 0.1 * np.eye(2)
+        c = rng.normal(size=2) * 100
+        pts = ellipse_points(c, cov, sigma=2.0)
+        d = pts - c
+        m = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d)   # Mahalanobis^2
+        np.testing.assert_allclose(m, 4.0, rtol=1e-9)
+        np.testing.assert_allclose(pts[0], pts[-1])              # closed
+
+
+def test_skeleton_strips_follow_the_joint_order():
+    from mocap_rt.names import JOINT_NAMES
+    J = np.arange(60, dtype=float).reshape(20, 3)
+    strips = skeleton_strips(J)
+    assert len(strips) == 5
+    np.testing.assert_array_equal(strips[0][0], J[JOINT_NAMES.index("pelvis")])
+    np.testing.assert_array_equal(strips[0][-1], J[JOINT_NAMES.index("head")])
+    J[JOINT_NAMES.index("knee_l")] = np.nan
+    assert len(skeleton_strips(J)) == 4
+
+
+def test_parse_rerun_specs():
+    assert parse_rerun("save:out/x.rrd") == ("save", ["out/x.rrd"])
+    assert parse_rerun("serve") == ("serve", [])
+    assert parse_rerun("serve:9000:9001") == ("serve", ["9000", "9001"])
+    assert parse_rerun("spawn") == ("spawn", [])
+    for bad in ("save:", "serve:x", "web", "spawn:1"):
+        with pytest.raises(ValueError):
+            parse_rerun(bad)
+
+
+def test_pose_log_snapshot_round_trip(tmp_path):
+    log = PoseLog(tmp_path / "poses.npz", ["a", "b"])
+    rng = np.random.default_rng(0)
+    poses = [Pose("r", f, 10 * MS * f, 10 * MS * f + 3 * MS, rng.normal(size=(6, 3)), np.ones(6, bool),
+                  rng.normal(size=(20, 3)), rng.normal(size=12), ("a",), ("b",)) for f in range(5)]
+    for p in poses:
+        log.add(p)
+    log.snapshot()
+    d = np.load(tmp_path / "poses.npz")
+    np.testing.assert_array_equal(d["frames"], np.arange(5))
+    np.testing.assert_array_equal(d["joints"], np.stack([p.joints for p in poses]))
+    np.testing.assert_array_equal(d["bvh_motion"], np.stack([p.bvh_frame for p in poses]))
+    np.testing.assert_array_equal(d["cameras_used"], [[True, False]] * 5)
+    np.testing.assert_allclose(d["latency_ms"], 3.0)
+    assert list(d["camera_names"]) == ["a", "b"]
+    assert not (tmp_path / "poses.tmp.npz").exists()
+
+
+def test_output_paths_never_reuse_existing_files(tmp_path):
+    a = output_paths(tmp_path)
+    assert a[0].name == "poses.npz"
+    a[1].write_text("x")
+    b = output_paths(tmp_path)
+    assert b[0].name == "poses_001.npz" and b[2].name == "stream_001"
