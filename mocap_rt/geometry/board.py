@@ -230,6 +230,8 @@ def _pnp(obj: np.ndarray, uv: np.ndarray, K: np.ndarray, dist: np.ndarray, plana
         raise CalibrationError(f"pose needs >= {4 if planar else MIN_CORNERS} points, got {len(obj)}")
     if not (np.all(np.isfinite(obj)) and np.all(np.isfinite(uv))):
         raise CalibrationError("NaN or inf in pose correspondences")
+    obj = np.ascontiguousarray(obj, dtype=np.float64)   # cv2 rejects strided views
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
     # Candidates: both IPPE solutions for a plane (the two-fold ambiguity of a planar
     # target seen from afar) and SQPnP's global minimum; each refined by LM; the one
     # with the smallest reprojection error wins.
