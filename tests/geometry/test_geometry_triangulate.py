@@ -247,3 +247,64 @@ def test_line_in_epipolar_plane_or_nan_input_gives_nan():
     assert np.all(np.isnan(line_direction_two_views(c1.P, [np.nan, 1], b1, c2.P, a2, b2)))
     with pytest.raises(ValueError, match="P1"):
         line_direction_two_views(np.zeros((3, 4)), a1, b1, c2.P, a2, b2)
+
+
+# ----------------------------------------------------------------------------- kernel
+@SETTINGS
+@given(seeds)
+def test_ray_triangulator_equals_numpy_reference_with_noise_weights_and_gaps(seed):
+    rng = np.random.default_rng(seed)
+    cams = _rig(rng, n=int(rng.integers(2, 7)), dist_size=int(rng.choice([0, 4, 5, 8])))
+    X = random_points(rng, 12)
+    uv = _observe(cams, X) + rng.normal(0, 1.0, (len(cams), 12, 2))
+    uv[rng.random((len(cams), 12)) < 0.2] = np.nan
+    w = rng.uniform(0.0, 2.0, (len(cams), 12))
+    w[rng.random(w.shape) < 0.1] = 0.0
+    ref = triangulate_points(cams, uv, w)
+    out = np.empty((12, 3))
+    got = RayTriangulator(cams)(uv, w, out=out)
+    assert got is out
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+    np.testing.assert_allclose(got, ref, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- real data
+def test_real_charuco_corners_triangulate_to_published_3d(data_dir):
+    """Caliscope session: 4 calibrated webcams, ChArUco corners detected in each view;
+    triangulating the detections must land on the published 3D corners (metres)."""
+    import csv
+    import tomllib
+
+    from mocap_rt.geometry.camera import Camera
+
+    root = data_dir / "multiview" / "caliscope_post_optimization"
+    table = tomllib.loads((root / "camera_array.toml").read_text())["cameras"]
+    ids = sorted(int(k) for k in table)
+    cams = [Camera(f"cam_{k}", tuple(table[str(k)]["size"]), table[str(k)]["matrix"],
+                   table[str(k)]["distortions"], table[str(k)]["rotation"], table[str(k)]["translation"])
+            for k in ids]
+    truth = {}
+    with open(root / "CHARUCO" / "xyz_CHARUCO.csv") as fh:
+        for row in csv.DictReader(fh):
+            truth[int(row["sync_index"]), int(row["keypoint_id"])] = [
+                float(row[k]) for k in ("x_coord", "y_coord", "z_coord")]
+    keys = sorted(truth)
+    index = {k: i for i, k in enumerate(keys)}
+    uv = np.full((len(cams), len(keys), 2), np.nan)
+    with open(root / "CHARUCO" / "xy_CHARUCO.csv") as fh:
+        for row in csv.DictReader(fh):
+            key = int(row["sync_index"]), int(row["keypoint_id"])
+            if key in index:
+                uv[ids.index(int(row["cam_id"])), index[key]] = [float(row["img_loc_x"]), float(row["img_loc_y"])]
+    X_true = np.array([truth[k] for k in keys])
+    seen = np.isfinite(uv).all(-1).sum(0) >= 2
+    assert seen.sum() > 300
+    for X in (triangulate_points(cams, uv), RayTriangulator(cams)(uv), triangulate_points(cams, uv, refine=True)):
+        err = np.linalg.norm(X[seen] - X_true[seen], axis=1)
+        assert np.median(err) < 0.005 and np.percentile(err, 95) < 0.02
+        assert np.all(np.isnan(X[~seen]))
+    # adjacent ChArUco corners are one 5.4 cm square apart
+    X = triangulate_points(cams, uv, refine=True)
+    gaps = [np.linalg.norm(X[index[k]] - X[index[(k[0], k[1] + 1)]]) for k in keys
+            if (k[0], k[1] + 1) in index and k[1] % 3 != 2 and seen[index[k]] and seen[index[(k[0], k[1] + 1)]]]
+    assert abs(np.median(gaps) - 0.054) < 0.002
