@@ -2,8 +2,8 @@
 
 Start order: recorder and viewer (so they miss nothing), fusion, one camera worker per
 camera; when all report ready, the sync node. Every node listens on its own loopback port
-and connects to every other one (a full mesh of explicit endpoints: no scouting, no
-router). A node that dies is restarted (``RESTART_LIMIT`` times); stopping (Ctrl-C,
+and connects to every node started before it and to the launcher (a full mesh of explicit
+endpoints, each link opened from one side: no scouting, no router). A node that dies is restarted (``RESTART_LIMIT`` times); stopping (Ctrl-C,
 ``--duration``, end of a replay) stops the sync first, lets the last poses arrive, then
 sends SIGTERM to the rest (SIGKILL after ``STOP_TIMEOUT_S``).
 """
@@ -184,9 +184,14 @@ class Launcher:
             sync_argv += ["--frames", str(self.n_replay_frames)]
         plan.append(("sync", "sync", sync_argv))
         ports = {name: free_port() for name, _, _ in plan}
+        # each link is opened by one side only (the later node connects to the earlier ones
+        # and to the launcher's monitor): two sessions racing to open the same link can
+        # drop messages while one of them is torn down
+        earlier: list[str] = []
         for name, role, argv in plan:
-            others = [f"tcp/127.0.0.1:{p}" for n, p in ports.items() if n != name]
+            others = [f"tcp/127.0.0.1:{ports[n]}" for n in earlier]
             others.append(f"tcp/127.0.0.1:{self.monitor_port}")
+            earlier.append(name)
             z = zenoh_argv([f"tcp/127.0.0.1:{ports[name]}"], others)
             extra = list(cfg.extra_node_args.get(role, []))
             self.nodes[name] = NodeProc(name, role, argv + common + ["--node", name] + z + extra, ports[name])
@@ -246,8 +251,7 @@ class Launcher:
         """Open the monitor session, start every node but sync, wait until they are ready."""
         import zenoh
 
-        others = [f"tcp/127.0.0.1:{n.port}" for n in self.nodes.values()]
-        self.session = zenoh.open(make_config([f"tcp/127.0.0.1:{self.monitor_port}"], others))
+        self.session = zenoh.open(make_config([f"tcp/127.0.0.1:{self.monitor_port}"], []))
         self.monitor = ServiceMonitor(self.session, self.keys)
         for n in self.nodes.values():
             if n.role != "sync":

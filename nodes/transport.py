@@ -45,8 +45,9 @@ def make_config(listen: Sequence[str] | None = None, connect: Sequence[str] | No
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("listen/endpoints", json.dumps(listen))
     conf.insert_json5("connect/endpoints", json.dumps(connect))
-    # do not block opening on absent peers; keep retrying them in the background
-    conf.insert_json5("connect/timeout_ms", "0")
+    # keep retrying absent or lost peers in the background (a restarted peer is re-joined);
+    # opening does not fail on them (exit_on_failure false)
+    conf.insert_json5("connect/timeout_ms", "-1")
     conf.insert_json5("connect/exit_on_failure", "false")
     conf.insert_json5("connect/retry", json.dumps({
         "period_init_ms": RETRY_PERIOD_INIT_MS, "period_max_ms": RETRY_PERIOD_MAX_MS,
