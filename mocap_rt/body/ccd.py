@@ -38,7 +38,7 @@ from mocap_rt.body.skeleton import N_JOINTS, BodyModel
 class CcdConfig:
     """Solver settings (units in the names). The switches reproduce the thesis' ablation."""
 
-    max_iterations: int = 150
+    max_iterations: int = 400
     tol_position_m: float = 5e-4
     tol_orientation_deg: float = 0.25
     use_limits: bool = True                  # improvement 1: range-of-motion limits
@@ -50,6 +50,7 @@ class CcdConfig:
     weight_ref_angle_deg: float = 1.0        # theta_ref
     body_scale_m: float = 0.5                # s
     relaxation: float = 1.5                  # over-relaxation of each 1-DOF step (1 = plain CCD)
+    redundant_chain_weight: float = 0.1      # see chain_weights (1 = plain CCD)
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,31 @@ def subtree_masks(model: BodyModel, effectors: np.ndarray) -> tuple[np.ndarray, 
             below[j, c] = True
             j = model.parents[j]
     return below, below[:, effectors]
+
+
+def chain_weights(model: BodyModel, effectors: np.ndarray, active: np.ndarray,
+                  redundant_weight: float) -> np.ndarray:
+    """(J, E) float weight of effector e when joint j is corrected.
+
+    1 where e is below j and the joints strictly between j and e have fewer than six
+    active DOF; ``redundant_weight`` where they have six or more (that chain can correct
+    its effector on its own, so it should not pull the shared joint, e.g. the hands on
+    the spine while the head needs it); 0 where e is not below j.
+    """
+    _, eff_below = subtree_masks(model, effectors)
+    out = eff_below.astype(np.float64)
+    n_dof = active.sum(axis=1)
+    for e, je in enumerate(effectors):
+        path = []
+        j = int(je)
+        while j >= 0:
+            path.append(j)
+            j = int(model.parents[j])
+        # path: effector ... root; DOF strictly below path[i] = sum over path[:i]
+        for i, j in enumerate(path):
+            if n_dof[path[:i]].sum() >= 6:
+                out[j, e] = redundant_weight
+    return out
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -202,20 +228,22 @@ def _ccd(parents, offsets, rest_local, root_pos, angles, active, lo, hi, effecto
                 k2 = 0.0
                 cx[:] = 0.0
                 for e in range(E):
-                    if not eff_below[j, e]:
+                    ew = eff_below[j, e]
+                    if ew <= 0.0:
                         continue
                     je = effectors[e]
                     if wp[e] > 0:
                         for i in range(3):
                             pc[i] = pos[je, i] - pos[j, i]
                             pd[i] = goal_pos[e, i] - pos[j, i]
-                        k1 += wp[e] * _dot(pd, a) * _dot(pc, a)
-                        k2 += wp[e] * _dot(pd, pc)
-                        cx[0] += wp[e] * (pc[1] * pd[2] - pc[2] * pd[1])
-                        cx[1] += wp[e] * (pc[2] * pd[0] - pc[0] * pd[2])
-                        cx[2] += wp[e] * (pc[0] * pd[1] - pc[1] * pd[0])
+                        w = ew * wp[e]
+                        k1 += w * _dot(pd, a) * _dot(pc, a)
+                        k2 += w * _dot(pd, pc)
+                        cx[0] += w * (pc[1] * pd[2] - pc[2] * pd[1])
+                        cx[1] += w * (pc[2] * pd[0] - pc[0] * pd[2])
+                        cx[2] += w * (pc[0] * pd[1] - pc[1] * pd[0])
                     for q in range(3):
-                        w = wo[e, q]
+                        w = ew * wo[e, q]
                         if w > 0:
                             for i in range(3):
                                 uc[i] = rot[je, i, q]
@@ -226,10 +254,12 @@ def _ccd(parents, offsets, rest_local, root_pos, angles, active, lo, hi, effecto
                             cx[1] += w * (uc[2] * ud[0] - uc[0] * ud[2])
                             cx[2] += w * (uc[0] * ud[1] - uc[1] * ud[0])
                 k3 = _dot(a, cx)
-                phi = relax * np.arctan2(k3, k2 - k1)
+                phi = np.arctan2(k3, k2 - k1)
                 lo_rel = lo[j, k] - angles[j, k]
                 hi_rel = hi[j, k] - angles[j, k]
-                if phi < lo_rel or phi > hi_rel:
+                if lo_rel <= relax * phi <= hi_rel:
+                    phi = relax * phi  # over-relax only inside the limits (never drive into one)
+                elif phi < lo_rel or phi > hi_rel:
                     g_lo = k1 * (1 - np.cos(lo_rel)) + k2 * np.cos(lo_rel) + k3 * np.sin(lo_rel)
                     g_hi = k1 * (1 - np.cos(hi_rel)) + k2 * np.cos(hi_rel) + k3 * np.sin(hi_rel)
                     phi = lo_rel if g_lo > g_hi else hi_rel
@@ -306,12 +336,13 @@ def solve_ccd(model: BodyModel, root_pos: np.ndarray, angles0: np.ndarray, effec
     ref = angles.copy() if reference is None else np.asarray(reference, dtype=np.float64)
     active, lo, hi = allowed_intervals(model, ref, config.use_limits, config.angle_tolerance_deg, solve_root)
     angles = np.where(active, np.clip(angles, lo, hi), angles)
-    below, eff_below = subtree_masks(model, effectors)
+    below, _ = subtree_masks(model, effectors)
+    eff_w = chain_weights(model, effectors, active, config.redundant_chain_weight)
     perr = np.zeros(len(effectors))
     oerr = np.zeros(len(effectors))
     it, ok = _ccd(model.parents, model.offsets, model.rest_local,
                   np.ascontiguousarray(root_pos, dtype=np.float64).reshape(3), angles, active, lo, hi,
-                  effectors, gp, gr, wpv, wrv, below, eff_below, int(config.max_iterations),
+                  effectors, gp, gr, wpv, wrv, below, eff_w, int(config.max_iterations),
                   config.tol_position_m, np.radians(config.tol_orientation_deg), config.adaptive_weights,
                   config.position_weight, config.orientation_weight, config.weight_ref_distance_m,
                   np.radians(config.weight_ref_angle_deg), config.body_scale_m,
