@@ -131,18 +131,20 @@ def _patent_nonlinear(parent: np.ndarray, child: np.ndarray, n_child: int, name:
     j0 = p1 + np.einsum("fab,b->fa", a_ok, init.local_parent)
     r0 = np.linalg.norm(j0[:, None] - cc, axis=2).mean(axis=0)  # (m,)
 
+    n_ok = int(ok.sum())
+    rows = np.arange(n_ok * n_child)
+    cols = np.tile(np.arange(n_child), n_ok)
+    jac_buf = np.zeros((n_ok * n_child, 3 + n_child))
+
     def fun(x):
-        j = p1 + np.einsum("fab,b->fa", a_ok, x[:3])
-        d = j[:, None] - cc  # (F, m, 3)
+        d = (p1 + a_ok @ x[:3])[:, None] - cc  # (F, m, 3)
         return (np.sum(d * d, axis=2) - x[3:] ** 2).ravel()
 
     def jac(x):
-        j = p1 + np.einsum("fab,b->fa", a_ok, x[:3])
-        d = j[:, None] - cc  # (F, m, 3)
-        jx = 2.0 * np.einsum("fma,fab->fmb", d, a_ok).reshape(-1, 3)
-        jr = np.zeros((jx.shape[0], n_child))
-        jr[np.arange(jx.shape[0]), np.tile(np.arange(n_child), int(ok.sum()))] = -2.0 * np.tile(x[3:], int(ok.sum()))
-        return np.hstack([jx, jr])
+        d = (p1 + a_ok @ x[:3])[:, None] - cc  # (F, m, 3)
+        jac_buf[:, :3] = 2.0 * np.matmul(d, a_ok).reshape(-1, 3)  # d/d(abc) of ||J - C||^2
+        jac_buf[rows, 3 + cols] = -2.0 * x[3:][cols]  # d/dr_k of -r_k^2
+        return jac_buf.copy()  # MINPACK may keep the array it is given
 
     sol = least_squares(fun, np.concatenate([init.local_parent, r0]), jac=jac, method="lm", x_scale="jac")
     coeffs = sol.x[:3]

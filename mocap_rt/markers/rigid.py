@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 MIN_MARKERS_FOR_POSE = 3
 GPA_MAX_ITER = 50
-GPA_REL_TOL = 1e-9  # relative change of the objective that ends the alternation
+GPA_REL_TOL = 1e-7  # relative decrease of the objective that ends the alternation
 MIN_OFF_LINE_FRAC = 0.15  # step D: third marker's distance from the line of the first two, / their distance
 
 
@@ -165,7 +165,7 @@ def fit_rigid_segment(markers: np.ndarray, similarity: bool = False, max_iter: i
         d2 = np.sum((x - apply_pose(c, r, t, z)) ** 2, axis=2)
         err = float(np.sum(np.where(seen & np.isfinite(d2), d2, 0.0)))
         if prev - err <= rel_tol * max(err, 1e-300):
-            break
+            break  # (c, r, t) are the poses for the current template
         prev = err
         # template update: z_j = sum_i c_i R_i^T (x_ij - t_i) / sum_i c_i^2 over frames seeing j
         w = (seen & has[:, None]).astype(np.float64)  # (F, k)
@@ -178,7 +178,8 @@ def fit_rigid_segment(markers: np.ndarray, similarity: bool = False, max_iter: i
         z -= z.mean(axis=0)
         if similarity:  # fix the scale gauge: mean per-frame scale 1
             z *= np.mean(c[has])
-    c, r, t = absolute_orientation(x, z, similarity=similarity)
+    else:  # max_iter reached right after a template update
+        c, r, t = absolute_orientation(x, z, similarity=similarity)
     corrected = apply_pose(c, r, t, z)
     d2 = np.sum((x - corrected) ** 2, axis=2)  # (F, k), NaN where unseen/no pose
     use = seen & np.isfinite(d2)

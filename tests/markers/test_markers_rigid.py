@@ -109,3 +109,17 @@ def test_apply_pose_inverts_absolute_orientation():
     c2, r2, t2 = absolute_orientation(fitted, src, similarity=True)
     np.testing.assert_allclose(c2, c)
     np.testing.assert_allclose(r2, r, atol=1e-12)
+
+
+def test_similarity_gpa_absorbs_per_frame_scale_that_rigid_gpa_cannot():
+    rng = np.random.default_rng(9)
+    z = rng.normal(scale=0.1, size=(4, 3))
+    rots = Rotation.random(50, random_state=10).as_matrix()
+    scale = rng.uniform(0.9, 1.1, 50)
+    x = scale[:, None, None] * np.einsum("fab,kb->fka", rots, z) + rng.normal(size=(50, 1, 3))
+    sim = fit_rigid_segment(x, similarity=True)
+    rig = fit_rigid_segment(x, similarity=False)
+    assert sim.rms_m < 1e-10
+    assert rig.rms_m > 1e-3
+    np.testing.assert_allclose(np.mean(sim.scale), 1.0, atol=1e-9)
+    np.testing.assert_allclose(sim.scale / sim.scale[0], scale / scale[0], rtol=1e-9)
