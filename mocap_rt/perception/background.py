@@ -40,10 +40,11 @@ _EPS_E2 = 1.0
 class ChangeThresholds:
     """Thresholds of the change test (see the module docstring)."""
 
-    cd_sigmas: float = 3.5           # colour distortion threshold in noise sigmas
+    cd_sigmas: float = 3.0           # colour distortion threshold in noise sigmas
     cd_min_grey: float = 5.0         # ... and at least this many grey levels
-    alpha_min: float = 0.35          # darker than this ratio is not a shadow: foreground
+    alpha_min: float = 0.42          # darker than this ratio is not a shadow: foreground
     alpha_max: float = 1.35          # brighter than this is not flicker: foreground
+    edge_strength: float = 2.5       # silhouette-boundary pixels must exceed this x the thresholds
 
 
 class BackgroundModel:
@@ -107,8 +108,11 @@ class BackgroundModel:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _change_kernel(img, mean, inv_ee, thr2, x0, y0, a_min, a_max, out):  # pragma: no cover - numba
+def _change_kernel(img, mean, inv_ee, thr2, x0, y0, a_min, a_max, strong2, out):  # pragma: no cover - numba
     """Change test on the box [x0, x0+w) x [y0, y0+h) of full-size arrays; out (h, w) uint8.
+
+    out: 0 unchanged, 128 changed, 255 changed with ``strong2`` times the squared threshold
+    (the pipeline keeps silhouette-boundary pixels only when strongly changed).
 
     img (H,W,3) uint8, mean (H,W,3) f32, inv_ee (H,W) f32 = 1/(E.E), thr2 (H,W) f32 squared
     colour-distortion threshold. A brightness ratio outside [a_min, a_max] is a change only
@@ -129,20 +133,23 @@ def _change_kernel(img, mean, inv_ee, thr2, x0, y0, a_min, a_max, out):  # pragm
             a = dot * inv_ee[y, x]
             t2 = thr2[y, x]
             # |I - a E|^2 = |I|^2 - (I.E)^2 / (E.E)
-            fg_colour = i0 * i0 + i1 * i1 + i2 * i2 - dot * a > t2
+            cd2 = i0 * i0 + i1 * i1 + i2 * i2 - dot * a
             d0 = i0 - e0
             d1 = i1 - e1
             d2 = i2 - e2
-            fg_bright = ((a < a_min) | (a > a_max)) & (d0 * d0 + d1 * d1 + d2 * d2 > t2)
-            # branch-free so that LLVM vectorises the row loop
-            out[yy, xx] = np.uint8(255) * np.uint8(fg_colour | fg_bright)
+            dd2 = d0 * d0 + d1 * d1 + d2 * d2
+            out_band = (a < a_min) | (a > a_max)
+            fg = (cd2 > t2) | (out_band & (dd2 > t2))
+            strong = (cd2 > strong2 * t2) | (out_band & (dd2 > strong2 * t2))
+            out[yy, xx] = np.uint8(128) * np.uint8(fg) + np.uint8(127) * np.uint8(strong & fg)
 
 
 def change_mask(image_bgr: np.ndarray, model: BackgroundModel, roi: tuple[int, int, int, int] | None = None,
                 thresholds: ChangeThresholds = ChangeThresholds(), out: np.ndarray | None = None) -> np.ndarray:
-    """Raw change mask (h, w) uint8 {0, 255} of ``image_bgr`` (H, W, 3) uint8 inside ``roi``.
+    """Raw change mask (h, w) uint8 of ``image_bgr`` (H, W, 3) uint8 inside ``roi``.
 
-    roi : (x, y, w, h) pixels, None = whole image. No connected-component clean-up.
+    0 = unchanged, 128 = changed, 255 = changed by more than ``thresholds.edge_strength``
+    times the thresholds. roi : (x, y, w, h) pixels, None = whole image. No clean-up.
     """
     img = np.ascontiguousarray(image_bgr)
     if img.shape[:2] != model.mean_bgr.shape[:2] or img.ndim != 3 or img.dtype != np.uint8:
@@ -152,7 +159,7 @@ def change_mask(image_bgr: np.ndarray, model: BackgroundModel, roi: tuple[int, i
         out = np.empty((h, w), np.uint8)
     inv_ee, thr2 = model.derived(thresholds)
     _change_kernel(img, model.mean_bgr, inv_ee, thr2, x, y, np.float32(thresholds.alpha_min),
-                   np.float32(thresholds.alpha_max), out)
+                   np.float32(thresholds.alpha_max), np.float32(thresholds.edge_strength ** 2), out)
     return out
 
 

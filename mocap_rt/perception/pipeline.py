@@ -23,6 +23,7 @@ import tomllib
 from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from mocap_rt.cues import CameraCues, CuePrediction
@@ -40,6 +41,7 @@ log = logging.getLogger(__name__)
 _SKIN_IDX = np.array([CUE_NAMES.index(c) for c in SKIN_CUES])
 _SHOE_IDX = np.array([CUE_NAMES.index(c) for c in SHOE_CUES])
 _TORSO = CUE_NAMES.index("torso")
+_CROSS3 = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,9 @@ class PerceptionConfig:
     torso_ridge_frac: float = DEFAULT_RIDGE_FRAC
     torso_step_px: int = 0                # distance-transform subsampling; 0 = 2 if width > 400 else 1
     background_update_rate: float = 0.0   # > 0: slow background update (per frame blend weight)
+    background_jpeg_quality: int = 0      # > 0: pass lossless backgrounds through JPEG at this
+                                          # quality first, to match JPEG/MJPG-compressed frames
+    close_px: int = 0                     # > 0: morphological closing (square, this size) of the change mask
 
 
 def _from_table(cls, table: dict, where: str):
@@ -108,7 +113,12 @@ class CameraPerceiver:
                  config: PerceptionConfig = PerceptionConfig()) -> None:
         self.camera = camera
         self.config = config
-        self.background = BackgroundModel.from_frames(backgrounds)
+        bgs = np.asarray(backgrounds)
+        if config.background_jpeg_quality > 0:
+            bgs = np.stack([_jpeg_round_trip(b, config.background_jpeg_quality) for b in bgs.reshape(-1, *bgs.shape[-3:])])
+        self.background = BackgroundModel.from_frames(bgs)
+        self._close_kernel = (cv2.getStructuringElement(cv2.MORPH_RECT, (config.close_px, config.close_px))
+                              if config.close_px > 0 else None)
         w, h = self.background.size
         if tuple(int(v) for v in camera.size) != (w, h):
             raise ValueError(f"camera {camera.name}: size {tuple(camera.size)} but backgrounds are {w}x{h}")
@@ -205,6 +215,8 @@ class CameraPerceiver:
         while True:
             rx, ry, rw, rh = roi
             mask = change_mask(img, self.background, roi, self.config.change)
+            if self._close_kernel is not None:
+                mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._close_kernel)
             filled, (cx, cy, cw, ch) = largest_component_filled(mask, self.config.min_person_area_px)
             full_roi = roi == (0, 0, w, h)
             touches = cw > 0 and ((cx == 0 and rx > 0) or (cy == 0 and ry > 0) or
@@ -217,6 +229,12 @@ class CameraPerceiver:
             return self._sil, (0, 0, 0, 0)
         box = (rx + cx, ry + cy, cw, ch)
         sil = filled[cy:cy + ch, cx:cx + cw]
+        if self.config.change.edge_strength > 1.0:
+            # boundary pixels stay only if strongly changed: compressed video bleeds colour
+            # across the person's edge, which makes the plain change mask ~1 px too wide
+            core = cv2.erode(sil, _CROSS3, borderType=cv2.BORDER_REPLICATE)
+            strong = cv2.compare(mask[cy:cy + ch, cx:cx + cw], 255, cv2.CMP_EQ)
+            sil = cv2.bitwise_or(core, cv2.bitwise_and(sil, strong))
         self._box, self._sil, self._sil_box = box, sil, box
         return sil, box
 
@@ -226,6 +244,13 @@ class CameraPerceiver:
         cols = np.flatnonzero(sil[0])
         x = float(cols.mean()) if cols.size else sil.shape[1] / 2.0
         return x, 0.06 * sil.shape[0]
+
+
+def _jpeg_round_trip(image_bgr: np.ndarray, quality: int) -> np.ndarray:
+    ok, buf = cv2.imencode(".jpg", image_bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError("JPEG encoding of a background frame failed")
+    return cv2.imdecode(buf, cv2.IMREAD_COLOR)
 
 
 def config_with(config: PerceptionConfig, **changes) -> PerceptionConfig:

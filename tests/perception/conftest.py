@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 SKIN_RGB = np.array([224, 172, 140])        # a typical light skin tone (R, G, B)
-SHOE_RGB = np.array([150, 40, 35])          # dark red shoes (R, G, B)
+SHOE_RGB = np.array([46, 158, 38])          # the studio's green shoes (R, G, B)
 SHIRT_BGR = (150, 90, 40)                   # blue shirt
 TROUSERS_BGR = (90, 40, 75)                 # dark purple trousers
 
