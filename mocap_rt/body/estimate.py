@@ -48,7 +48,7 @@ def bone_lengths_from_joints(joints: np.ndarray, foot_pitch_deg: float | None = 
             pitches.extend(90.0 - ang)  # angle below the horizontal when the shank is vertical
         foot_pitch_deg = float(np.median(pitches)) if pitches else BoneLengths().foot_pitch_deg
     return BoneLengths(
-        trunk_m=d("pelvis", "neck"), neck_head_m=d("neck", "head"),
+        trunk_m=d("pelvis", "torso") + d("torso", "neck"), neck_head_m=d("neck", "head"),
         shoulder_half_width_m=d("shoulder_l", "shoulder_r") / 2,
         upper_arm_m=avg("shoulder", "elbow"), forearm_m=avg("elbow", "wrist"), hand_m=avg("wrist", "hand"),
         hip_half_width_m=d("hip_l", "hip_r") / 2, thigh_m=avg("hip", "knee"), shank_m=avg("knee", "ankle"),
