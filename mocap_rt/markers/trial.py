@@ -92,8 +92,19 @@ def joint_centres_for_trial(data: MarkerData, segset: SegmentSet, method: str = 
     segset.check_markers(data.labels)
     prepared: dict[str, PreparedSegment] = {}
     for seg in segset.used_segments():
+        names = segset.segments[seg]
+        pts = data.select(names)
+        seen = np.all(np.isfinite(pts), axis=2)  # (F, k)
+        never = [n for n, s in zip(names, seen.any(axis=0)) if not s]
+        if never:  # a marker with no data at all is dropped, not fatal, while 3 remain
+            log.warning("segment %s: marker(s) %s have no data in %s; using the others", seg, never, data.source)
+            keep = [k for k, n in enumerate(names) if n not in never]
+            pts, seen = pts[:, keep], seen[:, keep]
+        if pts.shape[1] < 3 or not np.any(seen.sum(axis=1) >= 3):
+            raise ValueError(f"segment {seg!r}: fewer than 3 of its markers {list(names)} are seen together in any "
+                             f"frame of {data.source or 'the trial'}" + (f" (never seen: {never})" if never else ""))
         try:
-            prepared[seg] = prepare_segment(data.select(segset.segments[seg]), rigid, similarity)
+            prepared[seg] = prepare_segment(pts, rigid, similarity)
         except ValueError as exc:
             raise ValueError(f"segment {seg!r} ({data.source}): {exc}") from exc
     fits: dict[str, JointCentreFit] = {}

@@ -80,3 +80,15 @@ def test_whole_body_trial_noise_free_recovers_all_twelve_joints():
     bones = {(b.joint_a, b.joint_b): b for b in res.bone_lengths(segs)}
     assert bones[("hip_r", "knee_r")].mean_m == pytest.approx(0.42, abs=1e-6)
     assert bones[("hip_r", "knee_r")].std_m < 1e-6
+
+
+def test_trial_drops_a_never_seen_marker_and_names_segments_that_cannot_be_fitted():
+    data, segs, truth = simulate_body(n_frames=200, noise_m=0.0, seed=3)
+    pos = data.positions.copy()
+    pos[:, data.index("THIGH_R4")] = np.nan  # one of 4 thigh markers never seen: still fine
+    res = joint_centres_for_trial(type(data)(data.labels, pos, data.rate_hz), segs, "score")
+    k = res.names.index("knee_r")
+    np.testing.assert_allclose(res.centres[:, k], truth["knee_r"], atol=1e-6)
+    pos[:, data.index("THIGH_R3")] = np.nan  # now only 2 remain
+    with pytest.raises(ValueError, match=r"segment 'thigh_r'.*never seen: \['THIGH_R3', 'THIGH_R4'\]"):
+        joint_centres_for_trial(type(data)(data.labels, pos, data.rate_hz), segs, "score")
