@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from mocap_rt.geometry.board import BoardSpec
 from mocap_rt.geometry.camera import Camera
+from mocap_rt.geometry.ray_triangulator import _undistort
 
 __all__ = ["render_board_view"]
 
@@ -36,31 +38,47 @@ def render_board_view(camera: Camera, spec: BoardSpec, world_from_board: np.ndar
     margin = px_per_square // 2
     sheet = spec.image(px_per_square, margin).astype(np.float32)
     T = np.asarray(world_from_board, dtype=np.float64)
-    B, c = T[:3, :3], T[:3, 3]
+    B, c = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
     hi = _scaled_camera(camera, max(1, int(supersample)))
     w, h = hi.size
     x0, y0, x1, y1 = _sheet_bbox(hi, spec, T, sheet.shape, px_per_square, margin)
     out = np.full((h, w), float(background), np.float32)
     if x1 <= x0 or y1 <= y0:
         return _finish(out, camera, supersample)
-    grid = np.stack(np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64)), -1)
-    h, w = grid.shape[:2]
-    origin = hi.center
-    _, dirs = hi.rays(grid.reshape(-1, 2))                            # (h w, 3) world
-    normal = B[:, 2]                                                  # board z in world
-    denom = dirs @ normal
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = ((c - origin) @ normal) / denom                            # ray parameter
-        p_board = (origin + s[:, None] * dirs - c) @ B                # (H W, 3) board frame
-    # seen from the front only (the printed face looks towards -z of the board frame)
-    visible = (s > 0) & (denom > 0)
-    map_x = p_board[:, 0] / spec.square_m * px_per_square + margin - 0.5
-    map_y = p_board[:, 1] / spec.square_m * px_per_square + margin - 0.5
-    map_x = np.where(visible, map_x, -1e6).astype(np.float32).reshape(h, w)
-    map_y = np.where(visible, map_y, -1e6).astype(np.float32).reshape(h, w)
+    map_x = np.empty((y1 - y0, x1 - x0), np.float32)
+    map_y = np.empty_like(map_x)
+    dist = np.zeros(8)
+    dist[: hi.dist.size] = hi.dist
+    to_sheet = np.array([px_per_square / spec.square_m, margin - 0.5])   # metres -> sheet pixels
+    _sheet_maps(x0, y0, np.linalg.inv(hi.K), dist, hi.R, hi.center, B, c, to_sheet, map_x, map_y)
     out[y0:y1, x0:x1] = cv2.remap(sheet, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                                   borderValue=float(background))
     return _finish(out, camera, supersample)
+
+
+@njit(cache=True, nogil=True)
+def _sheet_maps(x0: int, y0: int, kinv: np.ndarray, dist: np.ndarray, R: np.ndarray, origin: np.ndarray,
+                B: np.ndarray, c: np.ndarray, to_sheet: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> None:
+    """For each pixel of the box: undistort, world ray R^T [x, y, 1], hit the board plane
+    (point c, normal B[:, 2]) from the front, board (x, y) -> sheet pixel; -1e6 = miss."""
+    n0, n1, n2 = B[0, 2], B[1, 2], B[2, 2]
+    num = (c[0] - origin[0]) * n0 + (c[1] - origin[1]) * n1 + (c[2] - origin[2]) * n2
+    for i in range(map_x.shape[0]):
+        for j in range(map_x.shape[1]):
+            x, y = _undistort(float(x0 + j), float(y0 + i), kinv, dist)
+            d0 = R[0, 0] * x + R[1, 0] * y + R[2, 0]
+            d1 = R[0, 1] * x + R[1, 1] * y + R[2, 1]
+            d2 = R[0, 2] * x + R[1, 2] * y + R[2, 2]
+            den = d0 * n0 + d1 * n1 + d2 * n2
+            s = num / den if den > 0.0 else -1.0      # den > 0: the printed face is seen
+            if s <= 0.0:
+                map_x[i, j] = map_y[i, j] = -1e6
+                continue
+            p0 = origin[0] + s * d0 - c[0]
+            p1 = origin[1] + s * d1 - c[1]
+            p2 = origin[2] + s * d2 - c[2]
+            map_x[i, j] = (p0 * B[0, 0] + p1 * B[1, 0] + p2 * B[2, 0]) * to_sheet[0] + to_sheet[1]
+            map_y[i, j] = (p0 * B[0, 1] + p1 * B[1, 1] + p2 * B[2, 1]) * to_sheet[0] + to_sheet[1]
 
 
 def _finish(img: np.ndarray, camera: Camera, supersample: int) -> np.ndarray:

@@ -28,7 +28,7 @@ UNDISTORT_EPS = 1e-15
 # as parallel (about 1e-7 rad between two rays).
 SINGULAR_DET_RATIO = 1e-14
 
-__all__ = ["RayTriangulator"]
+__all__ = ["RayTriangulator", "undistort_normalized"]
 
 
 @njit(cache=True, nogil=True)
@@ -108,6 +108,23 @@ def _triangulate_kernel(uv: np.ndarray, weights: np.ndarray, kinv: np.ndarray, d
         out[n, 0] = (c00 * b0 + c01 * b1 + c02 * b2) * inv_det
         out[n, 1] = (c01 * b0 + c11 * b1 + c12 * b2) * inv_det
         out[n, 2] = (c02 * b0 + c12 * b1 + c22 * b2) * inv_det
+
+
+@njit(cache=True, nogil=True)
+def _undistort_many(uv: np.ndarray, kinv: np.ndarray, dist: np.ndarray, out: np.ndarray) -> None:
+    for i in range(uv.shape[0]):
+        out[i, 0], out[i, 1] = _undistort(uv[i, 0], uv[i, 1], kinv, dist)
+
+
+def undistort_normalized(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    """(N, 2) distorted pixels -> (N, 2) ideal normalised coordinates, like
+    :meth:`Camera.undistort_pixels` but compiled: for whole images (rendering, maps)."""
+    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 2)
+    dist = np.zeros(8)
+    dist[: camera.dist.size] = camera.dist
+    out = np.empty_like(uv)
+    _undistort_many(uv, np.linalg.inv(camera.K), dist, out)
+    return out
 
 
 class RayTriangulator:
