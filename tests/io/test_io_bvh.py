@@ -75,7 +75,10 @@ def test_every_shared_clip_parses_with_constant_bone_lengths(data_dir):
 
 
 def test_matches_bvh_package_parse_and_independent_fk(data_dir):
-    for path in _clips(data_dir):
+    # every skeleton family; the two 2 MB clips are left out only because `bvh` is slow
+    clips = [p for p in _clips(data_dir) if p.stat().st_size < 1_000_000]
+    assert len(clips) >= 11
+    for path in clips:
         text = path.read_text()
         ref = bvh_pkg.Bvh(text)
         clip = read_bvh(path)
