@@ -26,7 +26,7 @@ import numpy as np
 class FilterConfig:
     """Kalman settings (units in the names)."""
 
-    accel_psd_m2ps3: float = 50.0      # white-acceleration spectral density q
+    accel_psd_m2ps3: float = 10.0      # white-acceleration spectral density q (bench_fusion sweep)
     measurement_noise_m: float = 0.006  # r, std of a triangulated cue
     gate_m: float = 0.35               # innovation gate (distance to the prediction)
     max_coast_s: float = 0.5           # after this long without an update a track is dropped

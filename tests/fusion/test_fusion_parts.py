@@ -1,0 +1,89 @@
+"""Fusion building blocks: Kalman cue filter, view selection, triangulation, Z-buffer prediction."""
+
+import numpy as np
+import pytest
+
+from mocap_rt.fusion.filter import CueFilter, FilterConfig
+from mocap_rt.fusion.views import RigProjector, frontal_pair, predict_views, triangulate_cues
+from mocap_rt.geometry.ray_triangulator import RayTriangulator
+from mocap_rt.geometry.rig import ring_rig
+
+
+def test_kalman_tracks_constant_velocity_and_predicts():
+    f = CueFilter(2, FilterConfig(measurement_noise_m=0.005, accel_psd_m2ps3=0.5))
+    rng = np.random.default_rng(0)
+    v = np.array([[1.0, -0.5, 0.2], [0.0, 0.3, 0.0]])
+    p0 = np.array([[0.0, 0, 1], [1, 1, 0.1]])
+    for k in range(90):
+        t = k / 30
+        f.update(t, p0 + v * t + rng.normal(0, 0.005, (2, 3)))
+    np.testing.assert_allclose(f.vel, v, atol=0.15)
+    t = 90 / 30
+    np.testing.assert_allclose(f.predict_at(t), p0 + v * t, atol=0.02)
+
+
+def test_kalman_gates_outliers_and_drops_stale_tracks():
+    cfg = FilterConfig(gate_m=0.3, max_coast_s=0.2)
+    f = CueFilter(1, cfg)
+    for k in range(10):
+        f.update(k / 30, np.array([[0.0, 0, 1]]))
+    acc = f.update(10 / 30, np.array([[2.0, 0, 1]]))          # a 2 m jump: rejected
+    assert not acc[0] and np.allclose(f.pos[0], [0, 0, 1], atol=1e-3)
+    f.update(20 / 30, np.full((1, 3), np.nan))                # nothing for 0.33 s: track dropped
+    assert not f.alive[0] and np.isnan(f.predict_at(21 / 30)).all()
+    acc = f.update(21 / 30, np.array([[2.0, 0, 1]]))          # restarts on the new position
+    assert acc[0] and np.allclose(f.pos[0], [2, 0, 1])
+
+
+def test_rig_projector_matches_camera_project():
+    rig = ring_rig()
+    X = np.random.default_rng(1).normal([0, 0, 1], 0.6, (8, 3))
+    uv, z, dist = RigProjector(rig.cameras).project(X)
+    for c, cam in enumerate(rig.cameras):
+        ref, front = cam.project(X)
+        np.testing.assert_allclose(uv[c][front], ref[front], atol=1e-9)
+        np.testing.assert_allclose(dist[c], np.linalg.norm(X - cam.center, axis=1))
+
+
+def test_triangulation_rejects_an_outlier_view():
+    rig = ring_rig()
+    X = np.array([[0.1, -0.2, 1.2], [0.0, 0.3, 0.5]])
+    proj = RigProjector(rig.cameras)
+    uv, _, _ = proj.project(X)
+    uv[2, 0] += [40.0, -25.0]                                  # a wrong blob in one camera
+    Xh, used, res = triangulate_cues(RayTriangulator(rig.cameras), proj, uv, np.ones((6, 2)), 4.0)
+    np.testing.assert_allclose(Xh, X, atol=1e-6)
+    assert not used[2, 0] and used[:, 1].all() and used[:, 0].sum() == 5
+    assert np.nanmax(res[used]) < 1e-3
+
+
+@pytest.mark.parametrize("pan_deg", [0, 60, 150, -100])
+def test_frontal_pair_faces_the_subject(pan_deg):
+    rig = ring_rig()
+    centers = np.array([c.center for c in rig.cameras])
+    a = np.radians(pan_deg)
+    right = np.array([np.cos(a), np.sin(a), 0])
+    forward = np.cross([0, 0, 1], right)
+    torso = np.array([0.2, -0.1, 1.0])
+    pair = frontal_pair(centers, torso - 0.1 * right, torso + 0.1 * right, torso, forward)
+    # independent check: the two cameras most in front of the subject (largest forward component)
+    front = (centers - torso)[:, :2] @ forward[:2] / np.linalg.norm((centers - torso)[:, :2], axis=1)
+    assert set(pair) == set(np.argsort(front)[-2:])
+
+
+def test_zbuffer_hides_a_cue_behind_a_nearer_one():
+    rig = ring_rig()
+    cam = rig.cameras[0]
+    head = np.array([0.0, 0.0, 1.6])
+    behind = head + 0.3 * (head - cam.center) / np.linalg.norm(head - cam.center)  # straight behind the head
+    X = np.array([head, behind, [0.5, 0, 1.0], [-0.1, 0, 0.05], [0.1, 0, 0.05], [0, 0, 1.1]])
+    xy, vis, rad = predict_views(RigProjector(rig.cameras), X, np.array([0.1, 0.05, 0.05, 0.06, 0.06, 0.15]))
+    assert vis[0, 0] and not vis[0, 1]            # hidden in cam_1 by the nearer head
+    opposite = int(np.argmax(np.linalg.norm([c.center - rig.cameras[0].center for c in rig.cameras], axis=1)))
+    assert vis[opposite, 1]                       # seen from the other side
+    np.testing.assert_allclose(xy[0, 1], xy[0, 0], atol=1e-6)
+    assert rad[0, 0] > rad[0, 1] * 1.5            # the head's disc is larger and nearer
+    # unknown cues are not visible and have no position
+    X[2] = np.nan
+    xy, vis, _ = predict_views(RigProjector(rig.cameras), X)
+    assert np.isnan(xy[:, 2]).all() and not vis[:, 2].any()

@@ -1,0 +1,107 @@
+"""BodyTracker driven by exact 2D projections (+ noise) of real CMU motion."""
+
+import numpy as np
+import pytest
+
+from mocap_rt.body.estimate import bone_lengths_from_joints
+from mocap_rt.cues import CameraCues, CuePrediction
+from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+from mocap_rt.geometry.rig import desktop_rig, ring_rig
+from mocap_rt.io.bvh import read_bvh
+from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES
+from mocap_rt.studio.body_map import body_motion
+
+
+@pytest.fixture(scope="module")
+def walk(data_dir):
+    clip = read_bvh(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh")
+    return body_motion(clip, fps=30, n_frames=80, placement="centre").joints
+
+
+def camera_cues(rig, points, frame, rng, noise_px=1.0, drop=()):
+    out = {}
+    for cam in rig.cameras:
+        uv, front = cam.project(points)
+        uv = uv + rng.normal(0, noise_px, uv.shape)
+        ok = front & cam.in_image(uv)
+        ok[list(drop)] = False
+        xy = np.where(ok[:, None], uv, np.nan)
+        out[cam.name] = CameraCues(cam.name, frame, xy, np.zeros((6, 2, 2)), ok * 100.0, ok * 1.0)
+    return out
+
+
+def run(tracker, rig, joints, seed=0, **kw):
+    rng = np.random.default_rng(seed)
+    res = []
+    for f, J in enumerate(joints):
+        res.append(tracker.step(f, camera_cues(rig, J[list(CUE_JOINT_INDEX)], f, rng, **kw)))
+    return res
+
+
+def test_tracker_on_truth_cues_meets_a_loose_accuracy_bound(walk):
+    rig = ring_rig()
+    tracker = BodyTracker(rig, FusionConfig(bone_lengths=bone_lengths_from_joints(walk)))
+    res = run(tracker, rig, walk)
+    cues = np.array([r.cues_3d for r in res])
+    joints = np.array([r.joints for r in res])
+    cue_err = np.linalg.norm(cues - walk[:, list(CUE_JOINT_INDEX)], axis=-1)
+    assert np.all(np.array([r.cue_valid for r in res]))
+    assert np.median(cue_err) < 0.010 and np.percentile(cue_err, 95) < 0.030
+    mpjpe = np.linalg.norm(joints - walk, axis=-1)[10:].mean()
+    assert mpjpe < 0.040
+    assert len(res[-1].bvh_frame) == tracker.bvh_skeleton.n_channels
+    assert set(res[-1].cameras_used) <= set(rig.names) and len(res[-1].cameras_used) >= 4
+    assert res[-1].timings_ms["total"] > 0
+
+
+def test_predict_gives_every_camera_the_projected_cues(walk):
+    rig = ring_rig()
+    tracker = BodyTracker(rig)
+    run(tracker, rig, walk[:20], noise_px=0.0)
+    pred = tracker.predict(20)
+    assert list(pred) == list(rig.names)
+    truth = walk[20][list(CUE_JOINT_INDEX)]
+    for cam in rig.cameras:
+        p = pred[cam.name]
+        assert isinstance(p, CuePrediction) and p.frame == 20
+        uv, _ = cam.project(truth)
+        err = np.linalg.norm(p.xy - uv, axis=1)
+        assert np.nanmax(err) < 15.0           # one frame ahead of a walk, in pixels
+        assert np.all(p.radius_px[np.isfinite(p.radius_px)] > 1)
+
+
+def test_missing_cameras_and_the_pair_mode(walk):
+    rig = ring_rig()
+    tracker = BodyTracker(rig, FusionConfig(views="pair", bone_lengths=bone_lengths_from_joints(walk)))
+    rng = np.random.default_rng(3)
+    res = []
+    for f, J in enumerate(walk[:40]):
+        cues = camera_cues(rig, J[list(CUE_JOINT_INDEX)], f, rng)
+        if f % 3 == 0:
+            cues.pop("cam_2")                     # an absent camera is simply missing
+        res.append(tracker.step(f, cues))
+    assert len(res[-1].pair) == 2
+    err = np.linalg.norm(np.array([r.cues_3d for r in res]) - walk[:40, list(CUE_JOINT_INDEX)], axis=-1)
+    assert np.nanmedian(err) < 0.015
+
+
+def test_desktop_rig_upper_body(walk):
+    rig = desktop_rig()
+    # the desktop user moves in place 1.8 m in front of the cameras (walk minus its travel)
+    J = walk.copy()
+    J[..., :2] -= walk[:, JOINT_NAMES.index("pelvis"), None, :2]
+    tracker = BodyTracker(rig, FusionConfig(bone_lengths=bone_lengths_from_joints(walk)))
+    res = run(tracker, rig, J[:30], drop=(3, 4))  # feet never seen
+    r = res[-1]
+    assert r.cue_valid[[0, 1, 2, 5]].all() and not r.cue_valid[[3, 4]].any()
+    upper = [JOINT_NAMES.index(n) for n in ("head", "hand_l", "hand_r", "torso")]
+    assert np.linalg.norm(r.joints[upper] - J[29, upper], axis=1).max() < 0.03
+    assert not r.joint_valid[JOINT_NAMES.index("knee_l")] and r.joint_valid[JOINT_NAMES.index("elbow_l")]
+    assert np.isfinite(r.joints).all()
+
+
+def test_config_errors():
+    with pytest.raises(ValueError, match="views"):
+        FusionConfig(views="three")
+    with pytest.raises(ValueError, match="ik"):
+        FusionConfig(ik="magic")
