@@ -148,3 +148,53 @@ def test_bad_board_input():
         calibrate_intrinsics(few, DESK_BOARD, (640, 480))
     with pytest.raises(ValueError, match="rigid"):
         extrinsics_from_board(np.eye(3), np.zeros(5), few[0], DESK_BOARD, 2 * np.eye(4))
+
+
+@pytest.mark.slow
+def test_real_charuco_video_detections_and_intrinsics(data_dir):
+    """Caliscope webcam video of a real (white-on-black) ChArUco board: our detections
+    match the published ones (same corner ids, sub-pixel agreement) and the intrinsics
+    from them agree with the published calibration of that camera."""
+    import csv
+    import tomllib
+
+    import cv2
+
+    root = data_dir / "multiview" / "caliscope_post_optimization"
+    spec = BoardSpec("charuco", 4, 5, 0.054, 0.0405, "DICT_4X4_1000", inverted=True)  # charuco.toml
+    published: dict[int, dict[int, tuple[float, float]]] = {}
+    with open(root / "CHARUCO" / "xy_CHARUCO.csv") as fh:
+        for row in csv.DictReader(fh):
+            if row["cam_id"] == "1":
+                published.setdefault(int(row["sync_index"]), {})[int(row["keypoint_id"])] = (
+                    float(row["img_loc_x"]), float(row["img_loc_y"]))
+    cap = cv2.VideoCapture(str(root / "cam_1.mp4"))
+    detections = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        detections.append(detect_board(frame, spec))
+    cap.release()
+    assert len(detections) == 57                      # sync_index 35..91
+    errors, matched, total = [], 0, sum(len(v) for v in published.values())
+    for k, det in enumerate(detections):
+        ref = published.get(35 + k, {})
+        if det is None:
+            continue
+        for cid, uv in zip(det.ids, det.uv):
+            if cid in ref:
+                matched += 1
+                errors.append(np.linalg.norm(uv - ref[cid]))
+    assert matched >= 0.9 * total
+    assert np.median(errors) < 0.5
+    # ids map to the same board-frame positions as in the published file
+    with open(root / "CHARUCO" / "xy_CHARUCO.csv") as fh:
+        row = next(csv.DictReader(fh))
+    np.testing.assert_allclose(spec.corner_points[int(row["keypoint_id"])][:2],
+                               [float(row["obj_loc_x"]), float(row["obj_loc_y"])], atol=1e-9)
+    result = calibrate_intrinsics(detections, spec, (1280, 720), n_dist=4)
+    K_pub = np.array(tomllib.loads((root / "camera_array.toml").read_text())["cameras"]["1"]["matrix"])
+    assert result.rms_px < 0.4
+    np.testing.assert_allclose(result.K[[0, 1], [0, 1]], K_pub[[0, 1], [0, 1]], rtol=0.02)
+    np.testing.assert_allclose(result.K[:2, 2], K_pub[:2, 2], atol=30.0)
