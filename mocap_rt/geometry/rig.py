@@ -31,6 +31,8 @@ import numpy as np
 
 from mocap_rt.geometry.camera import Camera, look_at, rotation_from_rodrigues
 
+# Camera.extra key holding the TOML table name when it differs from the camera name.
+TABLE_KEY = "__table__"
 _CAMERA_KEYS = {"name", "size", "matrix", "distortions", "rotation", "translation", "fisheye"}
 
 
@@ -128,14 +130,17 @@ def _camera_table(cam: Camera) -> dict:
         "translation": cam.t,
         "fisheye": False,
     }
-    table.update(cam.extra)
+    table.update({k: v for k, v in cam.extra.items() if k != TABLE_KEY})
     return table
 
 
 def rig_to_toml(rig: Rig) -> str:
     tables = {}
     for cam in rig.cameras:
-        tables[cam.name] = _camera_table(cam)
+        key = str(cam.extra.get(TABLE_KEY, cam.name))
+        if key in tables or key == "metadata":
+            raise ValueError(f"rig: two cameras would be written to the same table [{key}]")
+        tables[key] = _camera_table(cam)
     tables["metadata"] = {"adjusted": False, "error": 0.0, **rig.metadata}
     return dumps_toml(tables)
 
@@ -173,8 +178,11 @@ def _camera_from_table(key: str, table: dict, where: str) -> Camera:
         if table.get("fisheye", False) not in (False, 0):
             raise ValueError("fisheye cameras are not supported (the camera model is pinhole + OpenCV distortion)")
         extra = {k: v for k, v in table.items() if k not in _CAMERA_KEYS}
+        name = str(table.get("name", key))
+        if key != name:  # aniposelib writes [cam_0] name = "A": keep the table name for writing
+            extra[TABLE_KEY] = key
         return Camera(
-            name=str(table.get("name", key)),
+            name=name,
             size=(int(round(size[0])), int(round(size[1]))),
             K=matrix,
             dist=table["distortions"],

@@ -144,3 +144,24 @@ def test_ring_rig_geometry():
         np.testing.assert_allclose(uv[0], [(cam.width - 1) / 2, (cam.height - 1) / 2], atol=1e-9)
     assert rig.with_camera(rig[0].with_pose(np.eye(3), np.ones(3))).names == rig.names
     assert rig.subset(["cam_3", "cam_1"]).names == ["cam_3", "cam_1"]
+
+
+def test_aniposelib_style_tables_keep_their_names(tmp_path):
+    text = (
+        '[cam_0]\nname = "A"\nsize = [ 1280, 720]\n'
+        "matrix = [ [ 900.0, 0.0, 640.0], [ 0.0, 900.0, 360.0], [ 0.0, 0.0, 1.0]]\n"
+        "distortions = [ -0.1, 0.01, 0.0, 0.0, 0.0]\nrotation = [ 0.1, -0.2, 0.3]\n"
+        "translation = [ 0.5, 0.1, 2.0]\n\n"
+        '[cam_1]\nname = "B"\nsize = [ 1280, 720]\n'
+        "matrix = [ [ 910.0, 0.0, 641.0], [ 0.0, 905.0, 362.0], [ 0.0, 0.0, 1.0]]\n"
+        "distortions = [ 0.0, 0.0, 0.0, 0.0, 0.0]\nrotation = [ 0.0, 0.0, 0.0]\n"
+        "translation = [ 0.0, 0.0, 0.0]\n\n[metadata]\nadjusted = true\nerror = 0.4\n")
+    src = tmp_path / "anipose.toml"
+    src.write_text(text)
+    rig = read_rig(src)
+    assert rig.names == ["A", "B"] and rig["B"].size == (1280, 720)
+    out = tmp_path / "out.toml"
+    write_rig(rig, out)
+    assert tomllib.loads(out.read_text()) == {**tomllib.loads(text), **{
+        k: {**v, "fisheye": False} for k, v in tomllib.loads(text).items() if k != "metadata"}}
+    assert read_rig(out).metadata == {"adjusted": True, "error": 0.4}
