@@ -1,0 +1,50 @@
+"""`mocap-rt process` on a short studio recording rendered here (slow: rendering)."""
+
+import bvh
+import numpy as np
+import pytest
+
+from mocap_rt.cli import main as cli_main
+from mocap_rt.fusion.offline import process_recording
+from mocap_rt.names import JOINT_NAMES
+
+
+@pytest.fixture(scope="module")
+def recording(data_dir, tmp_path_factory):
+    from mocap_rt.studio.synth import synthesize
+
+    out = tmp_path_factory.mktemp("rec") / "walk"
+    synthesize(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh", out, seconds=0.5, truth_masks=False)
+    return out
+
+
+@pytest.mark.slow
+def test_process_truth_2d_writes_bvh_and_npz_and_is_accurate(recording, tmp_path):
+    out = process_recording(recording, tmp_path, truth_2d=True, noise_px=0.5, progress=False)
+    with np.load(tmp_path / "poses.npz") as z:
+        assert list(z["joint_names"]) == list(JOINT_NAMES)
+        n = len(z["frames"])
+        assert z["joints"].shape == (n, 20, 3) and z["cues"].shape == (n, 6, 3)
+    text = (tmp_path / "poses.bvh").read_text()
+    mocap = bvh.Bvh(text)
+    assert mocap.nframes == n and mocap.get_joints_names() == list(JOINT_NAMES)
+    acc = out.accuracy
+    assert acc.cue_median_mm < 10 and acc.cue_p95_mm < 30
+    assert acc.mpjpe_mm < 80  # bone lengths estimated from only 0.5 s of cues
+
+
+@pytest.mark.slow
+def test_process_cli_with_perception(recording, tmp_path, capsys):
+    rc = cli_main(["process", str(recording), "--out", str(tmp_path / "o"), "--no-progress", "--max-frames", "8"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "poses.bvh" in printed and "cue 3D error" in printed
+    with np.load(tmp_path / "o" / "poses.npz") as z:
+        assert len(z["frames"]) == 8
+        # perception finds at least the head and the torso in most frames
+        assert np.isfinite(z["cues"][:, [0, 5]]).all(axis=-1).mean() > 0.5
+
+
+def test_process_rejects_a_missing_directory(tmp_path, capsys):
+    rc = cli_main(["process", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
+    assert rc == 2 and "nope" in capsys.readouterr().err
