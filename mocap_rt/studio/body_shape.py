@@ -33,6 +33,9 @@ DEFAULT_ALBEDO_BGR: dict[str, tuple[float, float, float]] = {
     "shoe": (0.15, 0.62, 0.18),
 }
 
+# Capsules that make up the trunk (one visibility group).
+TRUNK_CAPSULES = ("torso", "chest", "hips", "neck")
+
 # Radii in metres (an adult of ~1.7 m).
 HEAD_RADIUS_M = 0.095
 HEAD_HALF_AXIS_M = 0.035   # head capsule half-length along the neck->head axis
@@ -54,7 +57,9 @@ class BodyPrimitives:
 
     a, b : (P, 3) float64 segment ends; radius : (P,) float64; material : (P,) int64
     index into MATERIALS; names : (P,) capsule names; cue_index : (6,) int64, the
-    capsule of each cue in CUE_NAMES order.
+    capsule of each cue in CUE_NAMES order; group : (P,) int64, capsules of one rigid
+    part share a group (the trunk: torso, chest, hips, neck), so that a cue hidden only
+    behind its own part still counts as visible.
     """
 
     a: np.ndarray
@@ -63,6 +68,7 @@ class BodyPrimitives:
     material: np.ndarray
     names: tuple[str, ...]
     cue_index: np.ndarray
+    group: np.ndarray
 
     @property
     def centres(self) -> np.ndarray:
@@ -96,6 +102,8 @@ def body_primitives(points: np.ndarray) -> BodyPrimitives:
         caps.append((f"foot_{s}", p[f"heel_{s}"], p[f"toe_{s}"], SHOE_RADIUS_M, SHOE))
     names = tuple(c[0] for c in caps)
     cue_index = np.array([names.index(c) for c in CUE_NAMES], dtype=np.int64)
+    trunk = names.index("torso")
+    group = np.array([trunk if n in TRUNK_CAPSULES else i for i, n in enumerate(names)], dtype=np.int64)
     return BodyPrimitives(
         a=np.array([c[1] for c in caps], dtype=np.float64),
         b=np.array([c[2] for c in caps], dtype=np.float64),
@@ -103,4 +111,5 @@ def body_primitives(points: np.ndarray) -> BodyPrimitives:
         material=np.array([c[4] for c in caps], dtype=np.int64),
         names=names,
         cue_index=cue_index,
+        group=group,
     )

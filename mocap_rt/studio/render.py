@@ -11,8 +11,9 @@ Per camera and frame:
    global flicker, per-camera gain and white balance, sensor noise from a per-pixel
    hash (deterministic for a seed, whatever the threading), to uint8 BGR.
 
-Cue visibility = visible pixels of the cue's capsule / all its pixels (in or out of
-the image, occluded or not). Shading is in display units (albedo x light, no gamma).
+Cue visibility = pixels where the cue's capsule is hit and the nearest surface is of
+its own part (the trunk's capsules do not hide the torso cue) / all pixels of the
+capsule (in or out of the image, occluded or not). Shading is in display units (albedo x light, no gamma).
 """
 
 from __future__ import annotations
@@ -77,7 +78,8 @@ class RenderResult:
 
     image : (H, W, 3) uint8 BGR; mask : (H, W) bool, the person's pixels;
     visibility : (P,) float64 visible fraction of each capsule in [0, 1];
-    cue_visibility : (6,) float64 the same for the cue capsules (CUE_NAMES order).
+    cue_visibility : (6,) float64 visible fraction of each cue's capsule, where only other
+        parts occlude (CUE_NAMES order; see the module docstring).
     """
 
     image: np.ndarray
@@ -139,8 +141,11 @@ def _capsule_t(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, r):
 
 
 @njit(cache=True, nogil=True)
-def _raster_capsules(rays, origin, rt_kinv, A, B, rad, bbox, zbuf, idbuf, total):
+def _raster_capsules(rays, origin, rt_kinv, A, B, rad, bbox, cue_of, zbuf, idbuf, cuehit, total):
     """Z-buffer the capsules into zbuf/idbuf; count each capsule's pixels in ``total``.
+
+    cue_of (P,) i8: cue index of each capsule or -1; cuehit (H, W) u1 gets bit k where
+    cue k's capsule covers the pixel (occluded or not).
 
     rays (H, W, 3) f8; origin (3,); rt_kinv (3, 3) = R^T K^-1 for off-image pixels;
     A, B (P, 3); rad (P,); bbox (P, 4) int64 u0, u1, v0, v1 inclusive (may leave the
@@ -168,9 +173,12 @@ def _raster_capsules(rays, origin, rt_kinv, A, B, rad, bbox, zbuf, idbuf, total)
                 t = _capsule_t(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, r)
                 if t > 0.0:
                     n += 1
-                    if inside and t < zbuf[v, u]:
-                        zbuf[v, u] = t
-                        idbuf[v, u] = p
+                    if inside:
+                        if cue_of[p] >= 0:
+                            cuehit[v, u] |= np.uint8(1 << cue_of[p])
+                        if t < zbuf[v, u]:
+                            zbuf[v, u] = t
+                            idbuf[v, u] = p
         total[p] = n
 
 
@@ -243,18 +251,28 @@ def _gauss3(key):
 
 @njit(cache=True, nogil=True)
 def _compose(bg_albedo, bg_cos, rays, origin, zbuf, idbuf, shadow, A, B, mat, mat_albedo,
-             light_dirs, light_int, ambient, scale_bgr, noise_sigma, key, out, mask, visible):
-    """Shade every pixel to uint8 BGR ``out``; fill ``mask`` and per-capsule ``visible`` counts."""
+             light_dirs, light_int, ambient, scale_bgr, noise_sigma, key, out, mask, visible,
+             cuehit, cue_index, group, cue_visible):
+    """Shade every pixel to uint8 BGR ``out``; fill ``mask``, per-capsule ``visible``
+    counts, and ``cue_visible`` (6,): pixels where the cue's capsule is hit and the
+    nearest surface belongs to its group."""
     H, W = zbuf.shape
     L = light_dirs.shape[0]
     for p in range(visible.shape[0]):
         visible[p] = 0
+    for k in range(cue_visible.shape[0]):
+        cue_visible[k] = 0
     for v in range(H):
         for u in range(W):
             p = idbuf[v, u]
             if p >= 0:
                 visible[p] += 1
                 mask[v, u] = True
+                hits = cuehit[v, u]
+                if hits != 0:
+                    for k in range(cue_index.shape[0]):
+                        if (hits >> k) & 1 and group[cue_index[k]] == group[p]:
+                            cue_visible[k] += 1
                 t = zbuf[v, u]
                 hx = origin[0] + t * rays[v, u, 0]
                 hy = origin[1] + t * rays[v, u, 1]
@@ -349,7 +367,7 @@ class StudioRenderer:
     @staticmethod
     def _new_buffers(h: int, w: int) -> dict:
         return {"z": np.empty((h, w), np.float32), "id": np.empty((h, w), np.int16),
-                "shadow": np.zeros((h, w), np.uint8)}
+                "shadow": np.zeros((h, w), np.uint8), "cuehit": np.zeros((h, w), np.uint8)}
 
     def flicker(self, frame: int) -> float:
         """Global illumination factor of a frame (1.0 without flicker)."""
@@ -411,24 +429,31 @@ class StudioRenderer:
         cam = self.rig.cameras[camera]
         bg = self.backgrounds[camera]
         buf = self._buffers[camera]
-        zbuf, idbuf, shadow = buf["z"], buf["id"], buf["shadow"]
+        zbuf, idbuf, shadow, cuehit = buf["z"], buf["id"], buf["shadow"], buf["cuehit"]
         np.copyto(zbuf, bg.depth)
         idbuf.fill(-1)
         shadow.fill(0)
+        cuehit.fill(0)
         if prims is None:
             a = b = np.zeros((0, 3))
             rad = np.zeros(0)
-            mat = np.zeros(0, np.int64)
+            mat = group = np.zeros(0, np.int64)
+            cue_index = np.zeros(0, np.int64)
         else:
             a = np.ascontiguousarray(prims.a, dtype=np.float64)
             b = np.ascontiguousarray(prims.b, dtype=np.float64)
             rad = np.ascontiguousarray(prims.radius, dtype=np.float64)
             mat = np.ascontiguousarray(prims.material, dtype=np.int64)
+            group = np.ascontiguousarray(prims.group, dtype=np.int64)
+            cue_index = np.ascontiguousarray(prims.cue_index, dtype=np.int64)
         total = np.zeros(len(rad), np.int64)
         visible = np.zeros(len(rad), np.int64)
+        cue_visible = np.zeros(len(cue_index), np.int64)
         if len(rad):
+            cue_of = np.full(len(rad), -1, np.int64)
+            cue_of[cue_index] = np.arange(len(cue_index))
             _raster_capsules(bg.rays, bg.origin, self._rt_kinv[camera], a, b, rad,
-                             self._bboxes(camera, prims), zbuf, idbuf, total)
+                             self._bboxes(camera, prims), cue_of, zbuf, idbuf, cuehit, total)
             if len(self._shadow_dirs):
                 box = self._shadow_box(camera, prims)
                 if box is not None:
@@ -442,8 +467,11 @@ class StudioRenderer:
         key = _mix_key(self.seed, camera, frame)
         _compose(bg.albedo, bg.cos_light, bg.rays, bg.origin, zbuf, idbuf, shadow, a, b, mat, self._albedo,
                  self._light_dirs, self._light_int, float(self.scene.ambient), scale,
-                 float(self.config.noise_sigma_levels), key, image, mask, visible)
-        vis = np.where(total > 0, visible / np.maximum(total, 1), 0.0)
-        vis = np.minimum(vis, 1.0)
-        cue_vis = vis[prims.cue_index] if prims is not None else np.zeros(6)
+                 float(self.config.noise_sigma_levels), key, image, mask, visible,
+                 cuehit, cue_index, group, cue_visible)
+        vis = np.minimum(np.where(total > 0, visible / np.maximum(total, 1), 0.0), 1.0)
+        if prims is None:
+            return RenderResult(image, mask, vis, np.zeros(6))
+        cue_total = total[cue_index]
+        cue_vis = np.minimum(np.where(cue_total > 0, cue_visible / np.maximum(cue_total, 1), 0.0), 1.0)
         return RenderResult(image, mask, vis, cue_vis)
