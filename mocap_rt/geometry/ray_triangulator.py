@@ -55,9 +55,11 @@ def _undistort(u: float, v: float, kinv: np.ndarray, dist: np.ndarray) -> tuple[
 
 @njit(cache=True, nogil=True)
 def _triangulate_kernel(uv: np.ndarray, weights: np.ndarray, kinv: np.ndarray, dist: np.ndarray,
-                        rt: np.ndarray, centers: np.ndarray, out: np.ndarray) -> None:
+                        rt: np.ndarray, centers: np.ndarray, out: np.ndarray) -> int:
     """uv (C, N, 2), weights (C, N), kinv (C, 3, 3), dist (C, 8), rt (C, 3, 3) = R^T,
-    centers (C, 3) -> out (N, 3) (NaN where < 2 valid views or singular)."""
+    centers (C, 3) -> out (N, 3) (NaN where < 2 valid views or singular).
+    Returns 0, or 1 for a negative or infinite weight (checked here: a numpy check of the
+    tiny array would cost more than the whole triangulation)."""
     C, N = uv.shape[0], uv.shape[1]
     for n in range(N):
         a00 = a01 = a02 = a11 = a12 = a22 = 0.0
@@ -65,6 +67,8 @@ def _triangulate_kernel(uv: np.ndarray, weights: np.ndarray, kinv: np.ndarray, d
         count = 0
         for c in range(C):
             w = weights[c, n]
+            if w < 0.0 or w == np.inf:
+                return 1
             u, v = uv[c, n, 0], uv[c, n, 1]
             if not (w > 0.0) or not (np.isfinite(u) and np.isfinite(v)):
                 continue
@@ -108,6 +112,7 @@ def _triangulate_kernel(uv: np.ndarray, weights: np.ndarray, kinv: np.ndarray, d
         out[n, 0] = (c00 * b0 + c01 * b1 + c02 * b2) * inv_det
         out[n, 1] = (c01 * b0 + c11 * b1 + c12 * b2) * inv_det
         out[n, 2] = (c02 * b0 + c12 * b1 + c22 * b2) * inv_det
+    return 0
 
 
 @njit(cache=True, nogil=True)
@@ -171,11 +176,10 @@ class RayTriangulator:
             w = np.ascontiguousarray(weights, dtype=np.float64)
             if w.shape != (C, N):
                 raise ValueError(f"weights must have shape ({C}, {N}), got {w.shape}")
-            if np.any(w < 0) or np.any(np.isposinf(w)):
-                raise ValueError("weights must be finite and >= 0")
         if out is None:
             out = np.empty((N, 3))
         elif out.shape != (N, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
             raise ValueError(f"out must be a C-contiguous float64 array of shape ({N}, 3)")
-        _triangulate_kernel(uv, w, self._kinv, self._dist, self._rt, self._centers, out)
+        if _triangulate_kernel(uv, w, self._kinv, self._dist, self._rt, self._centers, out):
+            raise ValueError("weights must be finite and >= 0")
         return out

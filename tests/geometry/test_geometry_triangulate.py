@@ -308,3 +308,19 @@ def test_real_charuco_corners_triangulate_to_published_3d(data_dir):
     gaps = [np.linalg.norm(X[index[k]] - X[index[(k[0], k[1] + 1)]]) for k in keys
             if (k[0], k[1] + 1) in index and k[1] % 3 != 2 and seen[index[k]] and seen[index[(k[0], k[1] + 1)]]]
     assert abs(np.median(gaps) - 0.054) < 0.002
+
+
+def test_ray_triangulator_rejects_bad_weights_and_out():
+    rng = np.random.default_rng(0)
+    cams = _rig(rng, 3)
+    tri = RayTriangulator(cams)
+    uv = _observe(cams, random_points(rng, 4))
+    for bad in (-1.0, np.inf):
+        w = np.ones((3, 4))
+        w[2, 3] = bad
+        with pytest.raises(ValueError, match="finite and >= 0"):
+            tri(uv, w)
+    with pytest.raises(ValueError, match="weights must have shape"):
+        tri(uv, np.ones((3, 5)))
+    with pytest.raises(ValueError, match="out must be"):
+        tri(uv, out=np.empty((4, 3), np.float32))
