@@ -18,6 +18,9 @@ import numpy as np
 
 # Below this depth (metres, camera frame) a point counts as behind the camera.
 MIN_DEPTH_M = 1e-9
+# cv2.undistortPoints: up to 50 fixed-point iterations, stop below 1e-15 (normalised units).
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-15)
+_EYE3 = np.eye(3)
 
 
 def _as_points(points: np.ndarray, dim: int, name: str) -> np.ndarray:
@@ -90,6 +93,9 @@ class Camera:
         for label, arr in (("matrix", K), ("distortions", dist), ("rotation", R), ("translation", t)):
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"camera {self.name!r}: {label} has NaN or inf")
+        if np.abs(K[2] - (0.0, 0.0, 1.0)).max() > 1e-12 or abs(K[1, 0]) > 1e-12 or not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise ValueError(f"camera {self.name!r}: matrix must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] "
+                             f"with fx, fy > 0, got {K.tolist()}")
         if abs(np.linalg.det(R) - 1.0) > 1e-6 or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
             raise ValueError(f"camera {self.name!r}: rotation is not a proper rotation matrix")
         w, h = (int(v) for v in self.size)
@@ -100,6 +106,8 @@ class Camera:
         object.__setattr__(self, "R", R)
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "size", (w, h))
+        # derived once: K^-1 (affine, as K's last row is [0, 0, 1]) for back-projection
+        object.__setattr__(self, "_K_inv", np.linalg.inv(K))
 
     # ------------------------------------------------------------------ derived
     @property
@@ -182,15 +190,13 @@ class Camera:
         if uv.shape[0] == 0:
             return np.zeros((0, 2))
         # Remove K (skew included, as project() applies it) to get distorted normalised xy.
-        ones = np.ones((uv.shape[0], 1))
-        xy = (np.hstack([uv, ones]) @ np.linalg.inv(self.K).T)[:, :2]
+        Kinv = self._K_inv
+        xy = uv @ Kinv[:2, :2].T + Kinv[:2, 2]
         if self.dist.size == 0 or not np.any(self.dist):
             return xy
         # OpenCV's iterative undistortion with K = I (cv2 ignores K's skew, so it is removed
-        # above); more iterations than the default for accuracy.
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-15)
-        out = cv2.undistortPoints(np.ascontiguousarray(xy).reshape(-1, 1, 2), np.eye(3), self.dist,
-                                  None, None, None, crit)
+        # above); more iterations and a tighter tolerance than the default, at no real cost.
+        out = cv2.undistortPoints(xy.reshape(-1, 1, 2), _EYE3, self.dist, None, None, None, _UNDISTORT_CRITERIA)
         return out.reshape(-1, 2)
 
     def rays(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

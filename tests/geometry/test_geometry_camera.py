@@ -137,3 +137,14 @@ def test_compiled_undistortion_matches_camera(seed, dist_size, skew):
     valid = np.linalg.norm(cam.distort_normalized(ref) @ cam.K[:2, :2].T + cam.K[:2, 2] - uv, axis=1) < 1e-6
     assert valid.mean() > 0.5
     np.testing.assert_allclose(undistort_normalized(cam, uv)[valid], ref[valid], atol=1e-10)
+
+
+@pytest.mark.parametrize("K", [
+    [[500.0, 0, 320], [0, 500, 240], [0, 0, 2.0]],
+    [[500.0, 0, 320], [0, 500, 240], [0.001, 0, 1]],
+    [[500.0, 0, 320], [3.0, 500, 240], [0, 0, 1]],
+    [[-500.0, 0, 320], [0, 500, 240], [0, 0, 1]],
+])
+def test_intrinsics_must_be_upper_triangular_with_unit_last_row(K):
+    with pytest.raises(ValueError, match="matrix must be"):
+        Camera("c", (640, 480), K, [], np.eye(3), np.zeros(3))
