@@ -51,13 +51,7 @@ def register(subparsers) -> None:
                      help="distortion coefficients: 4 (k1 k2 p1 p2), 5 (+k3), 8 (rational)")
     src.add_argument("--intrinsics-from", type=Path,
                      help="take K and distortion of --name from this rig TOML instead of --images")
-    spec = board.add_argument_group("board")
-    spec.add_argument("--board", choices=("charuco", "chessboard"), default="charuco", help="board kind")
-    spec.add_argument("--squares", default="8x6", help="squares along x and y, e.g. 8x6")
-    spec.add_argument("--square-m", type=float, required=True, help="square side in metres (measure the print)")
-    spec.add_argument("--marker-m", type=float, help="ChArUco marker side in metres (default 0.75 square)")
-    spec.add_argument("--dict", default="DICT_5X5_100", help="ChArUco dictionary (default DICT_5X5_100)")
-    spec.add_argument("--inverted", action="store_true", help="board printed white-on-black")
+    _add_board_args(board)
     ext = board.add_argument_group("extrinsics")
     ext.add_argument("--extrinsic-image", type=Path, help="image of the board lying at the known placement")
     ext.add_argument("--board-origin", default="0,0,0",
@@ -69,6 +63,24 @@ def register(subparsers) -> None:
     board.add_argument("--name", required=True, help="camera name in the rig, e.g. cam_1")
     board.add_argument("--out", required=True, type=Path, help="rig TOML to write or add the camera to")
     board.set_defaults(func=run_board)
+
+    make = sub.add_parser("make-board", help="write a printable board image (PNG)",
+                          description="Write a printable image of a ChArUco or checkerboard board; print it at "
+                                      "the size that makes one square --square-m metres, then measure it.")
+    _add_board_args(make)
+    make.add_argument("--px-per-square", type=int, default=200, help="pixels per square (default 200)")
+    make.add_argument("--out", required=True, type=Path, help="PNG file to write")
+    make.set_defaults(func=run_make_board)
+
+
+def _add_board_args(parser) -> None:
+    spec = parser.add_argument_group("board")
+    spec.add_argument("--board", choices=("charuco", "chessboard"), default="charuco", help="board kind")
+    spec.add_argument("--squares", default="8x6", help="squares along x and y, e.g. 8x6")
+    spec.add_argument("--square-m", type=float, required=True, help="square side in metres (measure the print)")
+    spec.add_argument("--marker-m", type=float, help="ChArUco marker side in metres (default 0.75 square)")
+    spec.add_argument("--dict", default="DICT_5X5_100", help="ChArUco dictionary (default DICT_5X5_100)")
+    spec.add_argument("--inverted", action="store_true", help="board printed white-on-black")
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -262,6 +274,19 @@ def run_board(args: argparse.Namespace) -> int:
     else:
         print("no --extrinsic-image/--extrinsic-points: pose left at identity (intrinsics only)")
     _save_camera(Camera(args.name, size, K, dist, R, t), args.out, rms)
+    return 0
+
+
+def run_make_board(args: argparse.Namespace) -> int:
+    import cv2
+
+    spec = _board_spec(args)
+    img = spec.image(args.px_per_square, args.px_per_square // 2)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(args.out), img):
+        raise ValueError(f"{args.out}: OpenCV cannot write this image (use .png)")
+    print(f"wrote {args.out}: {img.shape[1]}x{img.shape[0]} px, {spec.squares_x}x{spec.squares_y} squares; "
+          f"print so that one square is {spec.square_m * 100:.1f} cm")
     return 0
 
 

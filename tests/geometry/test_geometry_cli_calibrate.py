@@ -143,3 +143,18 @@ def test_board_command_images_and_video_then_floor_placement(tmp_path, capsys):
     assert np.linalg.norm(cam2.center - truth.center) < 0.05  # MJPG-compressed intrinsics
     assert main(["calibrate", "board", *BOARD_ARGS, "--name", "cam_2", "--out", str(out2)]) == 2
     assert "--images" in capsys.readouterr().err
+
+
+def test_make_board_writes_a_detectable_board(tmp_path, capsys):
+    from mocap_rt.geometry.board import detect_board
+
+    out = tmp_path / "board.png"
+    assert main(["calibrate", "make-board", *BOARD_ARGS, "--px-per-square", "60", "--out", str(out)]) == 0
+    assert "print so that one square is 8.0 cm" in capsys.readouterr().out
+    img = cv2.imread(str(out), cv2.IMREAD_GRAYSCALE)
+    assert img.shape == (5 * 60 + 60, 6 * 60 + 60)
+    det = detect_board(img, BOARD)
+    assert det is not None and len(det) == BOARD.n_corners
+    # corners land where the board frame says: (id position in squares) * 60 px + margin
+    expected = BOARD.corner_points[det.ids, :2] / BOARD.square_m * 60 + 30 - 0.5
+    np.testing.assert_allclose(det.uv, expected, atol=0.2)
