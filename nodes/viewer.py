@@ -100,8 +100,24 @@ class RerunLogger:
         self.rr = rr
         self.rig = rig
 
+    def blueprint(self):
+        """3D view + latency plots on the left, one 2D view per camera on the right."""
+        import rerun.blueprint as rrb
+
+        cams = [rrb.Spatial2DView(origin=f"world/cameras/{c}", name=c) for c in self.rig.names]
+        return rrb.Blueprint(rrb.Horizontal(
+            rrb.Vertical(rrb.Spatial3DView(origin="world", name="3D"),
+                         rrb.Horizontal(rrb.TimeSeriesView(origin="plots/latency_ms", name="latency ms"),
+                                        rrb.TimeSeriesView(origin="plots/cameras_used", name="cameras used")),
+                         row_shares=[3, 1]),
+            rrb.Grid(*cams, grid_columns=2), column_shares=[3, 2]), collapse_panels=True)
+
     def log_static(self) -> None:
         rr = self.rr
+        try:
+            rr.send_blueprint(self.blueprint())
+        except Exception as exc:  # layout is a nicety; never fatal
+            log.warning("viewer: blueprint not sent: %s", exc)
         rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for cam in self.rig.cameras:
             base = f"world/cameras/{cam.name}"
@@ -257,12 +273,7 @@ def main(argv: list[str] | None = None) -> int:
             run_viewer(session, keys, rig, rt)
             rt.publish_status("stopping", force=True)
     finally:
-        import rerun as rr
-
-        try:
-            rr.disconnect()
-        except Exception:
-            pass
+        # no rr.disconnect(): it can block ~10 s on a served stream; run_viewer flushed
         if web is not None:
             web.terminate()
             web.wait(timeout=5)

@@ -42,3 +42,88 @@ def wait_for(predicate, timeout_s: float, launcher=None, step_s: float = 0.05):
             launcher.supervise_for(step_s)
         else:
             time.sleep(step_s)
+
+
+class HeadlessChromium:
+    """Debian's chromium, headless, driven over the DevTools protocol on a pipe (no network).
+
+    ``screenshot(url, wait_s)`` opens ``url`` in a new tab, waits in real time (the web
+    viewer streams and compiles WebAssembly, which virtual time does not cover) and returns
+    PNG bytes.
+    """
+
+    FLAGS = ("--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+             "--no-first-run", "--no-default-browser-check", "--disable-extensions", "--mute-audio",
+             "--remote-debugging-pipe")
+
+    def __init__(self, exe: str, size=(1400, 900), user_dir: Path | None = None) -> None:
+        import os
+        import subprocess
+        import tempfile
+
+        self._to_r, self._to_w = os.pipe()       # we write commands -> chromium fd 3
+        self._from_r, self._from_w = os.pipe()   # chromium fd 4 -> we read replies
+        to_r, from_w = self._to_r, self._from_w
+
+        def fds():  # DevTools pipe: chromium reads fd 3, writes fd 4
+            a, b = os.dup(to_r), os.dup(from_w)     # out of the way of 3 and 4 first
+            os.dup2(a, 3)
+            os.dup2(b, 4)
+
+        user_dir = user_dir or Path(tempfile.mkdtemp(prefix="chromium-"))
+        self.proc = subprocess.Popen([exe, *self.FLAGS, f"--window-size={size[0]},{size[1]}",
+                                      f"--user-data-dir={user_dir}", "about:blank"],
+                                     pass_fds=(3, 4), preexec_fn=fds,
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        os.close(to_r)
+        os.close(from_w)
+        self._buf = b""
+        self._id = 0
+
+    def _send(self, method: str, params: dict | None = None, session: str | None = None) -> dict:
+        import json
+        import os
+
+        self._id += 1
+        msg = {"id": self._id, "method": method, "params": params or {}}
+        if session:
+            msg["sessionId"] = session
+        os.write(self._to_w, json.dumps(msg).encode() + b"\0")
+        while True:
+            while b"\0" not in self._buf:
+                chunk = os.read(self._from_r, 1 << 20)
+                if not chunk:
+                    raise RuntimeError("chromium closed the DevTools pipe")
+                self._buf += chunk
+            raw, self._buf = self._buf.split(b"\0", 1)
+            reply = json.loads(raw)
+            if reply.get("id") == self._id:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                return reply.get("result", {})
+
+    def screenshot(self, url: str, wait_s: float) -> bytes:
+        import base64
+
+        target = self._send("Target.createTarget", {"url": url})["targetId"]
+        session = self._send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
+        time.sleep(wait_s)
+        shot = self._send("Page.captureScreenshot", {"format": "png"}, session)
+        return base64.b64decode(shot["data"])
+
+    def close(self) -> None:
+        import os
+
+        try:
+            self._send("Browser.close")
+        except Exception:
+            pass
+        try:
+            self.proc.wait(timeout=10)
+        except Exception:
+            self.proc.kill()
+        for fd in (self._to_w, self._from_r):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
