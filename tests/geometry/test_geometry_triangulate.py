@@ -324,3 +324,46 @@ def test_ray_triangulator_rejects_bad_weights_and_out():
         tri(uv, np.ones((3, 5)))
     with pytest.raises(ValueError, match="out must be"):
         tri(uv, out=np.empty((4, 3), np.float32))
+
+
+def test_real_board_rows_line_direction(data_dir):
+    """B.2 on real data: a row of ChArUco corners seen by two calibrated webcams gives the
+    3D direction of that row (published 3D corners), to a few degrees."""
+    import csv
+    import tomllib
+
+    from mocap_rt.geometry.camera import Camera
+
+    root = data_dir / "multiview" / "caliscope_post_optimization"
+    table = tomllib.loads((root / "camera_array.toml").read_text())["cameras"]
+    cams = {int(k): Camera(f"cam_{k}", tuple(v["size"]), v["matrix"], v["distortions"], v["rotation"],
+                           v["translation"]) for k, v in table.items()}
+    xyz, xy = {}, {}
+    with open(root / "CHARUCO" / "xyz_CHARUCO.csv") as fh:
+        for row in csv.DictReader(fh):
+            xyz[int(row["sync_index"]), int(row["keypoint_id"])] = np.array(
+                [float(row[k]) for k in ("x_coord", "y_coord", "z_coord")])
+    with open(root / "CHARUCO" / "xy_CHARUCO.csv") as fh:
+        for row in csv.DictReader(fh):
+            xy[int(row["cam_id"]), int(row["sync_index"]), int(row["keypoint_id"])] = np.array(
+                [float(row["img_loc_x"]), float(row["img_loc_y"])])
+
+    def ideal(cam_id, uv):  # undistorted pixel
+        cam = cams[cam_id]
+        return (cam.K @ np.append(cam.undistort_pixels(uv[None])[0], 1.0))[:2]
+
+    angles = []
+    for (cam_id, sync, kp) in list(xy):
+        if cam_id != 1 or kp % 3 != 0:
+            continue
+        a_id, b_id = kp, kp + 2  # first and last corner of a row of 3
+        keys = [(c, sync, k) for c in (1, 2) for k in (a_id, b_id)]
+        if not all(k in xy for k in keys) or (sync, a_id) not in xyz or (sync, b_id) not in xyz:
+            continue
+        d = line_direction_two_views(cams[1].P, ideal(1, xy[keys[0]]), ideal(1, xy[keys[1]]),
+                                     cams[2].P, ideal(2, xy[keys[2]]), ideal(2, xy[keys[3]]))
+        truth = xyz[sync, b_id] - xyz[sync, a_id]
+        if np.isfinite(d).all():
+            angles.append(np.degrees(np.arccos(np.clip(d @ truth / np.linalg.norm(truth), -1, 1))))
+    assert len(angles) > 30
+    assert np.median(angles) < 1.5, np.median(angles)  # oriented a -> b too (a wrong sign gives ~180)
