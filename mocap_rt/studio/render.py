@@ -35,6 +35,8 @@ MIN_HIT_T_M = 1e-6
 NEAR_PLANE_M = 0.05
 # Cap on how far outside the image (fraction of its size) visibility counting goes.
 OFF_IMAGE_MARGIN_FRAC = 1.0
+# Off-image pixels are counted on a grid of this stride (each hit stands for stride^2).
+OFF_IMAGE_STRIDE = 4
 # Extra pixels around each projected bounding box.
 BBOX_MARGIN_PX = 2
 
@@ -149,7 +151,8 @@ def _raster_capsules(rays, origin, rt_kinv, A, B, rad, bbox, cue_of, zbuf, idbuf
 
     rays (H, W, 3) f8; origin (3,); rt_kinv (3, 3) = R^T K^-1 for off-image pixels;
     A, B (P, 3); rad (P,); bbox (P, 4) int64 u0, u1, v0, v1 inclusive (may leave the
-    image); zbuf (H, W) f4 seeded with the background depth; idbuf (H, W) i2 seeded -1.
+    image; off-image pixels are sampled every OFF_IMAGE_STRIDE); zbuf (H, W) f4 seeded
+    with the background depth; idbuf (H, W) i2 seeded -1.
     """
     H, W = zbuf.shape
     ox, oy, oz = origin[0], origin[1], origin[2]
@@ -160,8 +163,13 @@ def _raster_capsules(rays, origin, rt_kinv, A, B, rad, bbox, cue_of, zbuf, idbuf
         r = rad[p]
         n = 0
         for v in range(v0, v1 + 1):
+            row_inside = 0 <= v < H
+            if not row_inside and v % OFF_IMAGE_STRIDE != 0:
+                continue
             for u in range(u0, u1 + 1):
-                inside = 0 <= u < W and 0 <= v < H
+                inside = row_inside and 0 <= u < W
+                if not inside and (u % OFF_IMAGE_STRIDE != 0 or v % OFF_IMAGE_STRIDE != 0):
+                    continue
                 if inside:
                     dx, dy, dz = rays[v, u, 0], rays[v, u, 1], rays[v, u, 2]
                 else:
@@ -172,7 +180,7 @@ def _raster_capsules(rays, origin, rt_kinv, A, B, rad, bbox, cue_of, zbuf, idbuf
                     dx, dy, dz = dx / nn, dy / nn, dz / nn
                 t = _capsule_t(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, r)
                 if t > 0.0:
-                    n += 1
+                    n += 1 if inside else OFF_IMAGE_STRIDE * OFF_IMAGE_STRIDE
                     if inside:
                         if cue_of[p] >= 0:
                             cuehit[v, u] |= np.uint8(1 << cue_of[p])
