@@ -10,6 +10,8 @@ from pathlib import Path
 import bvh as bvh_pkg
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mocap_rt.io.bvh import (BvhError, BvhStreamWriter, forward_kinematics, read_bvh,
                              write_bvh)
@@ -161,3 +163,38 @@ def test_stream_writer_close_writes_everything(tmp_path, data_dir):
             w.write(row)
     back = read_bvh(tmp_path / "s.bvh")
     np.testing.assert_allclose(back.motion, clip.motion[:37], rtol=1e-8, atol=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), n_joints=st.integers(1, 8))
+def test_random_skeletons_any_rotation_order(tmp_path_factory, seed, n_joints):
+    """Random hierarchies, channel orders and angles: write -> read -> FK == hand-built FK."""
+    from mocap_rt.io.bvh import BvhJoint, BvhSkeleton
+
+    rng = np.random.default_rng(seed)
+    joints = []
+    for j in range(n_joints):
+        rot = list(rng.permutation(["Xrotation", "Yrotation", "Zrotation"]))
+        pos = list(rng.permutation(["Xposition", "Yposition", "Zposition"])) if (j == 0 or rng.random() < 0.2) else []
+        chans = tuple(pos + rot) if rng.random() < 0.5 else tuple(rot + pos)
+        end = rng.normal(size=3) if rng.random() < 0.4 else None
+        joints.append(BvhJoint(f"j{j}", -1 if j == 0 else int(rng.integers(0, j)), rng.normal(size=3), chans, end))
+    sk = BvhSkeleton(tuple(joints))
+    motion = rng.uniform(-180, 180, (4, sk.n_channels))
+    path = tmp_path_factory.mktemp("rnd") / "r.bvh"
+    write_bvh(path, sk, motion, 1 / 60)
+    back = read_bvh(path)
+    pos = forward_kinematics(back.skeleton, back.motion)
+    starts = back.skeleton.channel_starts
+    for f in range(4):
+        R, p = {}, {}
+        for j, jt in enumerate(back.skeleton.joints):
+            t, Rl = jt.offset.copy(), np.eye(3)
+            for k, ch in enumerate(jt.channels):
+                val = back.motion[f, starts[j] + k]
+                if ch.endswith("position"):
+                    t["XYZ".index(ch[0])] = val
+                else:
+                    Rl = Rl @ _elementary(ch[0], val)
+            R[j], p[j] = (Rl, t) if jt.parent < 0 else (R[jt.parent] @ Rl, p[jt.parent] + R[jt.parent] @ t)
+            np.testing.assert_allclose(pos[f, j], p[j], atol=1e-9)
