@@ -79,7 +79,8 @@ def ellipse_frame(cov):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True)
-def deform_ellipse(skin, mean, cov, scale, n_pts, search_frac, search_min_px, win_half_px, contour):  # pragma: no cover
+def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_px, win_half_px, mirror_iters,
+                   contour):  # pragma: no cover
     """Deformable-ellipse boundary (A.2, eq. 3-4) and the centroid of the region it encloses.
 
     The initial ellipse is ``{mean + scale * Sigma^(1/2) u, |u| = 1}`` (scale 2 = the edge of a
@@ -89,10 +90,18 @@ def deform_ellipse(skin, mean, cov, scale, n_pts, search_frac, search_min_px, wi
     of ``sum_W p - N_W/2`` nearest the initial ellipse is interpolated to sub-pixel. Search
     range +-max(search_min_px, search_frac * local radius).
 
-    contour (n_pts, 2) float64 receives the deformed boundary. Returns (cx, cy, area_px2),
+    Occlusion completion (our addition; the studio's truth showed the plain centroid shifted
+    away from the adjacent limb by 1-2 px): a boundary point whose outside (2.5 px further
+    along the normal) is silhouette (``sil`` > 0) borders another body part, which may hide
+    part of the blob; when the opposite point borders the background, the point is replaced
+    by the opposite point mirrored through the current centre (head, hand and shoe are
+    centrally symmetric shapes). ``mirror_iters`` rounds (0 = the paper's plain centroid).
+
+    contour (n_pts, 2) float64 receives the (completed) boundary. Returns (cx, cy, area_px2),
     the centroid and area of the polygon (the region inside the deformed contour).
     """
     sd1, sd2, c, s = ellipse_frame(cov)
+    contact = np.zeros(n_pts, np.bool_)
     mx = mean[0]
     my = mean[1]
     L = 2 * win_half_px                      # window samples along the normal
@@ -153,7 +162,27 @@ def deform_ellipse(skin, mean, cov, scale, n_pts, search_frac, search_min_px, wi
             dstar = -0.9 * r_loc
         contour[k, 0] = px + dstar * nx
         contour[k, 1] = py + dstar * ny
-    # polygon centroid and area (shoelace)
+        ox = int(contour[k, 0] + 2.5 * nx + 0.5)
+        oy = int(contour[k, 1] + 2.5 * ny + 0.5)
+        hs, ws = sil.shape
+        contact[k] = 0 <= ox < ws and 0 <= oy < hs and sil[oy, ox] > 0
+    cx, cy, area = _polygon_centroid(contour, n_pts, mx, my)
+    if mirror_iters > 0 and n_pts % 2 == 0:
+        free = contour.copy()
+        half = n_pts // 2
+        for _ in range(mirror_iters):
+            for k in range(n_pts):
+                j = (k + half) % n_pts
+                if contact[k] and not contact[j]:
+                    contour[k, 0] = 2.0 * cx - free[j, 0]
+                    contour[k, 1] = 2.0 * cy - free[j, 1]
+            cx, cy, area = _polygon_centroid(contour, n_pts, mx, my)
+    return cx, cy, area
+
+
+@numba.njit(cache=True, nogil=True)
+def _polygon_centroid(contour, n_pts, mx, my):  # pragma: no cover - numba
+    """Centroid and area of a polygon (shoelace, relative to (mx, my) for precision)."""
     a2 = 0.0
     cx = 0.0
     cy = 0.0

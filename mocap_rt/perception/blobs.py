@@ -55,6 +55,7 @@ class BlobParams:
     search_min_px: float = 3.0          # ... at least this
     window_half_px: int = 2             # J(p) window half length along the normal
     max_refine_shift_frac: float = 0.6  # deformed centroid may move this * radius from mu'
+    mirror_iters: int = 2               # occlusion completion rounds (blob_kernels.deform_ellipse)
     facing_camera: bool = True          # cold-start convention: image-left = person's right
 
 
@@ -67,6 +68,9 @@ class BlobFrame:
     area: np.ndarray        # (K,) float64 px^2 (deformed region, or pixel count if occluded)
     confidence: np.ndarray  # (K,) float64 in [0, 1]
     contours: list          # K entries: (n_pts, 2) float64 deformed contour, or None
+
+
+_NO_SIL = np.zeros((1, 1), np.uint8)
 
 
 def _moments_to_gaussian(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -105,7 +109,8 @@ class BlobTracker:
     # ------------------------------------------------------------------ per frame
     def step(self, skin_roi: np.ndarray, roi_xy: tuple[int, int], person_box_roi: tuple[int, int, int, int],
              top_roi: tuple[float, float] | None, pred_xy: np.ndarray | None = None,
-             pred_visible: np.ndarray | None = None, pred_radius: np.ndarray | None = None) -> BlobFrame:
+             pred_visible: np.ndarray | None = None, pred_radius: np.ndarray | None = None,
+             sil_roi: np.ndarray | None = None) -> BlobFrame:
         """Track one frame.
 
         skin_roi : (h, w) float32 colour map of the region of interest, 1 = colour pixel
@@ -115,6 +120,8 @@ class BlobTracker:
         top_roi : (x, y) ROI pixels of the silhouette's top (head acquisition), or None.
         pred_xy, pred_visible, pred_radius : (K, 2), (K,), (K,) prediction for this frame in
             image pixels (from fusion, A.4); None = use the tracker's own 2D prediction.
+        sil_roi : (h, w) uint8 silhouette of the ROI (> 0 = person) for occlusion completion;
+            None = no completion.
         """
         p = self.params
         K = len(self.roles)
@@ -132,6 +139,7 @@ class BlobTracker:
         gate = gate + p.gate_speed_factor * speed
 
         bx, by, bw, bh = person_box_roi
+        sil = sil_roi if sil_roi is not None else _NO_SIL
         out = BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K),
                         [None] * K)
         if bw <= 0 or bh <= 0:
@@ -157,8 +165,9 @@ class BlobTracker:
             contour = None
             r_blob = math.sqrt(n / math.pi)
             if visible[k]:
-                cx, cy, a = deform_ellipse(skin_roi, mean, cov, p.ellipse_scale, p.n_contour_pts, p.search_frac,
-                                           p.search_min_px, p.window_half_px, self._contour)
+                cx, cy, a = deform_ellipse(skin_roi, sil, mean, cov, p.ellipse_scale, p.n_contour_pts,
+                                           p.search_frac, p.search_min_px, p.window_half_px,
+                                           p.mirror_iters if sil_roi is not None else 0, self._contour)
                 if a > 0 and math.hypot(cx - mean[0], cy - mean[1]) <= p.max_refine_shift_frac * r_blob + 0.5:
                     xy, area = np.array([cx, cy]), a
                     contour = self._contour + (ox, oy)

@@ -175,9 +175,9 @@ class CameraPerceiver:
         for tracker, idx, cmap in ((self.skin_tracker, _SKIN_IDX, skin), (self.shoe_tracker, _SHOE_IDX, shoe)):
             if prediction is not None:
                 res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, prediction.xy[idx],
-                                   prediction.visible[idx], prediction.radius_px[idx])
+                                   prediction.visible[idx], prediction.radius_px[idx], sil_roi=sil)
             else:
-                res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top)
+                res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, sil_roi=sil)
             xy[idx], cov[idx], area[idx], conf[idx] = res.xy, res.cov, res.area, res.confidence
             for k, c in zip(idx, res.contours):
                 if c is not None:

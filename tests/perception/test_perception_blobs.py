@@ -53,7 +53,7 @@ def test_deformable_ellipse_recovers_region_from_a_wrong_initial_ellipse(centre,
     r = 0.5 * np.mean(axes) * 1.3
     cov = np.array([[r * r, 0.2 * r * r], [0.2 * r * r, r * r]])
     contour = np.zeros((24, 2))
-    cx, cy, area = deform_ellipse(skin, mean, cov, 2.0, 24, 0.5, 3.0, 2, contour)
+    cx, cy, area = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 24, 0.5, 3.0, 2, 0, contour)
     assert np.hypot(cx - pix_centroid[0], cy - pix_centroid[1]) < 0.35
     assert area == pytest.approx(skin.sum(), rel=0.08)     # the drawn (pixel) region
     assert area == pytest.approx(true_area, rel=0.15)
