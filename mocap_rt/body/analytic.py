@@ -40,14 +40,16 @@ MIN_REACH_FRAC = 0.05
 class AnalyticConfig:
     """Parameters of the analytic IK (angles in degrees, speeds in m/s)."""
 
-    elbow_raise_deg: float = 20.0   # pole of the elbow rotated outwards from straight back
-    knee_open_deg: float = 10.0     # pole of the knee rotated outwards from straight forward
-    feet_weight: float = 1.0        # weight of the feet's left->right vector for the pan
-    hands_weight: float = 0.3       # weight of the hands' left->right vector
+    elbow_raise_deg: float = 0.0    # pole of the elbow rotated outwards about the body axis
+    elbow_down_deg: float = 60.0    # pole of the elbow tilted from backwards towards down
+    knee_open_deg: float = 5.0      # pole of the knee rotated outwards from straight forward
+    feet_weight: float = 0.5        # weight of the feet's left->right vector for the pan
+    hands_weight: float = 1.0       # weight of the hands' left->right vector
     walk_speed_mps: float = 0.4     # above this torso speed the walking direction counts
     walk_weight: float = 2.0        # weight of the walking direction at twice that speed
     pan_smoothing: float = 0.5      # 0 = no memory, -> 1 = keep the previous pan (walking)
-    still_pan_smoothing: float = 0.9  # the same when standing (feet/hands only: less reliable)
+    still_pan_smoothing: float = 0.8  # the same when standing (feet/hands only: less reliable)
+    snap_standing: bool = False     # standing: take the feet/hands line modulo 90 deg near the previous pan
 
 
 def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
@@ -80,7 +82,7 @@ def body_axes(cues: np.ndarray, prev_right: np.ndarray | None = None, velocity: 
             continue
         if heading is not None:  # while walking, feet and hands separate along the track
             vec = vec - heading * (vec @ heading)
-        elif prev_right is not None:
+        elif prev_right is not None and config.snap_standing:
             # standing: the feet may be side by side or staggered, so the feet line gives
             # the pan modulo 90 degrees; take the candidate nearest the previous right axis
             vec = vec - up * (vec @ up)
@@ -162,7 +164,7 @@ def _frame(z, x_hint, out):
 
 
 @njit(cache=True, nogil=True)
-def _analytic(cues, axes, lengths, elbow_raise, knee_open, foot_rest, limb_joints, R):
+def _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, R):
     """Fill the joint frames R (J, 3, 3); return the pelvis position (see analytic_pose)."""
     trunk, sh_half, upper_len, fore_len, hip_half, thigh, shank, foot_len = lengths
     right = axes[:, 0].copy()
@@ -186,7 +188,8 @@ def _analytic(cues, axes, lengths, elbow_raise, knee_open, foot_rest, limb_joint
         jsh, jel, jwr, jha, jhi, jkn, jan, jft = limb_joints[s]
         # arm: shoulder -> elbow -> hand (hand collinear with the forearm at zero wrist angles)
         shoulder = neck + right * (sx * sh_half)
-        pole = _rot_about(up, -sx * elbow_raise, -forward)
+        back_down = -forward * np.cos(elbow_down) - up * np.sin(elbow_down)
+        pole = _rot_about(up, -sx * elbow_raise, back_down)
         elbow, hand, u, w = _two_link(shoulder, cues[hand_c], upper_len, fore_len, pole)
         x = _cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
         _frame(elbow - shoulder, x, R[jsh])
@@ -236,7 +239,8 @@ def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
     R = np.empty((N_JOINTS, 3, 3))
     foot_rest = np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2])
     pelvis = _analytic(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
-                       lengths, np.radians(config.elbow_raise_deg), np.radians(config.knee_open_deg),
+                       lengths, np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
+                       np.radians(config.knee_open_deg),
                        foot_rest, _LIMB_JOINTS, R)
     angles = np.empty((N_JOINTS, 3))
     _angles_from_frames(model.parents, model.rest_local, model.dof, R, angles)
