@@ -148,3 +148,24 @@ def test_compiled_undistortion_matches_camera(seed, dist_size, skew):
 def test_intrinsics_must_be_upper_triangular_with_unit_last_row(K):
     with pytest.raises(ValueError, match="matrix must be"):
         Camera("c", (640, 480), K, [], np.eye(3), np.zeros(3))
+
+
+@SETTINGS
+@given(seeds, st.sampled_from([4, 5, 8]))
+def test_skew_is_applied_after_distortion_like_a_full_K(seed, dist_size):
+    """cv2.projectPoints ignores K[0, 1]; the camera applies the whole K to the distorted
+    normalised point: u = fx xd + s yd + cx. Checked against cv2 on the skew-free K."""
+    rng = np.random.default_rng(seed)
+    cam = random_camera(rng, dist_size=dist_size, skew=3.0)
+    X = random_points(rng, 20)
+    K0 = cam.K.copy()
+    K0[0, 1] = 0.0
+    uv0 = cv2.projectPoints(X, cam.rvec, cam.t, K0, cam.dist)[0].reshape(-1, 2)
+    xd_yd = (uv0 - K0[:2, 2]) / np.diag(K0)[:2]              # distorted normalised (cv2)
+    expected = uv0 + np.stack([3.0 * xd_yd[:, 1], np.zeros(20)], axis=1)
+    np.testing.assert_allclose(cam.project(X)[0], expected, atol=1e-7)
+    # and the rays invert exactly that projection
+    origins, dirs = cam.rays(expected)
+    v = X - origins
+    off_ray = v - np.einsum("ij,ij->i", v, dirs)[:, None] * dirs
+    np.testing.assert_allclose(np.linalg.norm(off_ray, axis=1), 0.0, atol=1e-9)
