@@ -39,12 +39,15 @@ def make_config(listen: Sequence[str] | None = None, connect: Sequence[str] | No
     """A ``zenoh.Config`` for a peer with explicit endpoints and no scouting."""
     import zenoh
 
+    if config_file is not None and not Path(config_file).is_file():
+        raise FileNotFoundError(f"--zenoh-config {config_file}: no such file")
     conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
-    listen = list(listen) if listen else [DEFAULT_LISTEN]
-    connect = list(connect) if connect else []
     conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", json.dumps(listen))
-    conf.insert_json5("connect/endpoints", json.dumps(connect))
+    # flags win; without flags a config file keeps its own endpoints; else loopback only
+    if listen or not config_file:
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen) if listen else [DEFAULT_LISTEN]))
+    if connect or not config_file:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect) if connect else []))
     # keep retrying absent or lost peers in the background (a restarted peer is re-joined);
     # opening does not fail on them (exit_on_failure false)
     conf.insert_json5("connect/timeout_ms", "-1")
