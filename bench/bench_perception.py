@@ -240,6 +240,8 @@ def accuracy(clips: list[Path], sizes, modes, with_uci: bool) -> list[dict]:
             s = _summary(allres[(size, mode)])
             rows.append({"clip": "ALL", "size": f"{size[0]}x{size[1]}", "mode": mode, **s})
             _print_row("ALL clips", size, mode, s)
+            print("    per-cue median px: " + ", ".join(f"{n} {s['per_cue_median_px'][k]:.2f}" for k, n in
+                                                     enumerate(("head", "hand_l", "hand_r", "foot_l", "foot_r", "torso"))))
     if with_uci:
         rec = ensure_recording(clips[0], SIZES[0], seed=100)
         s = _summary([evaluate_recording(rec, "2d", "")])

@@ -18,6 +18,9 @@ def register(subparsers) -> None:
     p.add_argument("recording", type=Path, help="recording directory (mocap_rt.io.recording format)")
     p.add_argument("--out", type=Path, required=True, help="output .npz")
     p.add_argument("--config", type=Path, help="perception config TOML (PerceptionConfig fields)")
+    p.add_argument("--skin-model", default="auto",
+                   help="skin model: a TOML file, a shipped name (skin, studio_skin) or 'auto' "
+                        "(studio_skin for studio recordings, else the config's / shipped skin)")
     p.add_argument("--cameras", nargs="*", help="only these cameras (default: all, rig order)")
     p.add_argument("--max-frames", type=int, default=0, help="stop after this many frames (0 = all)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -59,6 +62,8 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     import numpy as np
 
     from mocap_rt.io.recording import Recording
@@ -66,6 +71,11 @@ def run(args: argparse.Namespace) -> int:
 
     config = load_perception_config(args.config) if args.config else PerceptionConfig()
     with Recording(args.recording) as rec:
+        if args.skin_model == "auto":
+            if rec.source == "studio" and not config.skin_model_path:
+                config = replace(config, skin_model_path="studio_skin")
+        else:
+            config = replace(config, skin_model_path=args.skin_model)
         cameras = list(args.cameras) if args.cameras else list(rec.camera_names)
         unknown = [c for c in cameras if c not in rec.camera_names]
         if unknown:

@@ -94,6 +94,7 @@ class BlobTracker:
         self._vel = np.zeros((K, 2))             # px / frame
         self._radius = np.full(K, np.nan)        # px
         self._coast = np.zeros(K, np.int64)      # frames since last measurement
+        self._last_seen = np.full((K, 2), np.nan)  # last measured position, kept while lost
         self._sums = np.zeros((K, N_MOMENTS))
         self._contour = np.zeros((params.n_contour_pts, 2))
 
@@ -150,7 +151,7 @@ class BlobTracker:
         acquired = np.zeros(K, bool)
         missing = ~found
         if missing.any():
-            acquired = self._acquire(skin_roi, box, centers, found, missing, top_roi)
+            acquired = self._acquire(skin_roi, box, centers, found, missing, top_roi, self._last_seen - (ox, oy))
             if acquired.any():
                 centers = np.where(acquired[:, None], self._acq_centers, centers)
                 gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
@@ -187,7 +188,7 @@ class BlobTracker:
                       np.ascontiguousarray(gate * gate, np.float64), self._sums)
         return self._sums[:, 0] >= self.params.min_area_px
 
-    def _acquire(self, skin_roi, box, centers, found, missing, top_roi) -> np.ndarray:
+    def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
         """Assign unclaimed colour regions to missing blobs; sets ``_acq_centers``/``_acq_gate``."""
         p = self.params
         K = len(self.roles)
@@ -224,13 +225,14 @@ class BlobTracker:
             self._acq_gate[k] = half * 1.5
             acquired[k] = True
 
-        # 1) a recently seen blob takes the candidate nearest its last position
+        # 1) a recently seen blob takes the candidate nearest its predicted position
         for k in np.flatnonzero(missing):
             if cand and np.isfinite(centers[k]).all():
                 d = [np.hypot(*(c - centers[k])) for _, c, _ in cand]
                 i = int(np.argmin(d))
                 if d[i] <= 3.0 * max(cand[i][2], p.gate_min_px):
                     take(k, i)
+
         # 2) the head: the candidate nearest the silhouette's top
         roles = self.roles
         if "head" in roles:
@@ -246,10 +248,17 @@ class BlobTracker:
             need = [k for k in (kl, kr) if missing[k] and not acquired[k]]
             if len(need) == 2 and len(cand) >= 2:
                 i_left, i_right = (0, 1) if cand[0][1][0] <= cand[1][1][0] else (1, 0)
-                # person facing the camera: their right hand is on the image's left
-                k_imgleft, k_imgright = (kr, kl) if p.facing_camera else (kl, kr)
+                if np.isfinite(last_seen[[kl, kr]]).all():
+                    # both were seen before: the pairing nearest their last positions
+                    c_l, c_r = cand[i_left][1], cand[i_right][1]
+                    keep = (np.hypot(*(c_l - last_seen[kl])) + np.hypot(*(c_r - last_seen[kr])) <=
+                            np.hypot(*(c_l - last_seen[kr])) + np.hypot(*(c_r - last_seen[kl])))
+                    k_imgleft, k_imgright = (kl, kr) if keep else (kr, kl)
+                else:
+                    # cold start, person facing the camera: their right hand is on the image's left
+                    k_imgleft, k_imgright = (kr, kl) if p.facing_camera else (kl, kr)
                 c_left, c_right = cand[i_left], cand[i_right]
-                cand[:] = [t for i, t in enumerate(cand) if i not in (0, 1)] 
+                cand[:] = [t for i, t in enumerate(cand) if i not in (0, 1)]
                 cand.insert(0, c_right)
                 cand.insert(0, c_left)
                 take(k_imgleft, 0)
@@ -270,6 +279,7 @@ class BlobTracker:
                 else:
                     self._vel[k] = 0.0
                 self._xy[k] = new
+                self._last_seen[k] = new
                 self._radius[k] = math.sqrt(max(out.area[k], 1.0) / math.pi)
                 self._coast[k] = 0
             else:

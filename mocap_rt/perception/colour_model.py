@@ -160,12 +160,25 @@ def load_colour_model(path: str | Path) -> ColourModel:
     return loads_colour_model(path.read_text(), str(path))
 
 
+SHIPPED_MODELS = ("skin", "shoe", "studio_skin")
+
+
 def default_colour_model(kind: str) -> ColourModel:
-    """The shipped model ``kind`` ("skin" or "shoe") from ``mocap_rt/data``."""
-    if kind not in ("skin", "shoe"):
-        raise ValueError(f"unknown default colour model {kind!r} (skin or shoe)")
+    """A shipped model from ``mocap_rt/data``: "skin" (real UCI skin pixels), "shoe" (the
+    studio's shoes) or "studio_skin" (the studio's rendered skin, see docs/perception.md)."""
+    if kind not in SHIPPED_MODELS:
+        raise ValueError(f"unknown shipped colour model {kind!r} (one of {SHIPPED_MODELS})")
     path = _DATA_DIR / f"{kind}.toml"
     return loads_colour_model(path.read_text(), str(path))
+
+
+def colour_model_from_spec(spec: str, default: str) -> ColourModel:
+    """``spec`` = "" (the shipped ``default``), a shipped model name, or a TOML file path."""
+    if not spec:
+        return default_colour_model(default)
+    if spec in SHIPPED_MODELS:
+        return default_colour_model(spec)
+    return load_colour_model(spec)
 
 
 # ---------------------------------------------------------------------- fitting

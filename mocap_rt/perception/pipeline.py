@@ -32,8 +32,7 @@ from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
 from mocap_rt.perception.background import (BackgroundModel, ChangeThresholds, change_mask,
                                             largest_component_filled)
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
-from mocap_rt.perception.colour_model import (ColourModel, default_colour_model, likelihood_map,
-                                              load_colour_model)
+from mocap_rt.perception.colour_model import ColourModel, colour_model_from_spec, likelihood_map
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
 
 log = logging.getLogger(__name__)
@@ -48,7 +47,9 @@ _CROSS3 = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 class PerceptionConfig:
     """Settings of one camera's perception; pixel values are at the camera's resolution.
 
-    skin_model_path / shoe_model_path: TOML colour models; "" = the shipped defaults.
+    skin_model_path / shoe_model_path: TOML colour model files, or the name of a shipped
+    model ("skin", "shoe", "studio_skin"); "" = the shipped "skin" / "shoe". Use
+    "studio_skin" for studio recordings (its skin does not darken like real skin).
     """
 
     change: ChangeThresholds = ChangeThresholds()
@@ -122,10 +123,8 @@ class CameraPerceiver:
         w, h = self.background.size
         if tuple(int(v) for v in camera.size) != (w, h):
             raise ValueError(f"camera {camera.name}: size {tuple(camera.size)} but backgrounds are {w}x{h}")
-        self.skin_model: ColourModel = (load_colour_model(config.skin_model_path) if config.skin_model_path
-                                        else default_colour_model("skin"))
-        self.shoe_model: ColourModel = (load_colour_model(config.shoe_model_path) if config.shoe_model_path
-                                        else default_colour_model("shoe"))
+        self.skin_model: ColourModel = colour_model_from_spec(config.skin_model_path, "skin")
+        self.shoe_model: ColourModel = colour_model_from_spec(config.shoe_model_path, "shoe")
         self.skin_tracker = BlobTracker(SKIN_CUES, config.skin_blobs)
         self.shoe_tracker = BlobTracker(SHOE_CUES, config.shoe_blobs)
         self._torso_step = config.torso_step_px or (2 if w > 400 else 1)

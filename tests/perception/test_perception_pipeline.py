@@ -111,7 +111,8 @@ def test_perceive_cli_on_a_small_recording(tmp_path):
             scs = [make_scene(size=(320, 240), scale=0.5, cx=120.0 + 4 * f + 20 * c) for c in range(2)]
             frames.append(scs)
             w.write_frame(f, [s.image for s in scs], [f / 30.0] * 2)
-    assert main(["perceive", str(tmp_path / "rec"), "--out", str(tmp_path / "cues.npz"), "--no-progress"]) == 0
+    assert main(["perceive", str(tmp_path / "rec"), "--out", str(tmp_path / "cues.npz"), "--no-progress",
+                 "--skin-model", "skin"]) == 0
     z = np.load(tmp_path / "cues.npz")
     assert list(z["camera_names"]) == ["cam_1", "cam_2"] and list(z["cue_names"]) == list(CUE_NAMES)
     assert z["cues_2d"].shape == (2, 6, 6, 2) and z["confidence"].shape == (2, 6, 6)
