@@ -1,17 +1,14 @@
 """Per-subject bone lengths: measured from joint positions, or estimated from the cues.
 
 The paper needed the subject's segment lengths beforehand; here they are estimated
-from the first seconds of a capture. Six cues do not see elbows or knees, so the
-estimate scales a default adult (``BoneLengths()``) by one factor, the median of
-three ratios between observed and model distances:
-
-* head - torso (rigid in the model: ``trunk/2 + neck_head``), median over frames;
-* torso - foot with the legs near straight: the 90th percentile over frames of each
-  foot's distance, against the rest pose's;
-* the shoulders-to-hands span is not used (arms are rarely straight).
+from the first seconds of a capture (``estimate_bone_lengths``). Six cues do not see
+elbows or knees, so the estimate scales a default adult (``BoneLengths()``) by three
+group factors (trunk, legs, arms), see the function.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -20,6 +17,7 @@ from mocap_rt.body.skeleton import J, BoneLengths, body_model
 C_HEAD, C_HAND_L, C_HAND_R, C_FOOT_L, C_FOOT_R, C_TORSO = range(6)
 MIN_FRAMES = 10  # fewer valid frames than this: no estimate
 LEG_PERCENTILE = 90.0
+ARM_PERCENTILE = 97.0
 
 
 def _mean_dist(joints: np.ndarray, a: str, b: str) -> float:
@@ -55,24 +53,58 @@ def bone_lengths_from_joints(joints: np.ndarray, foot_pitch_deg: float | None = 
         foot_m=avg("ankle", "foot"), foot_pitch_deg=foot_pitch_deg)
 
 
-def estimate_bone_lengths(cues: np.ndarray, base: BoneLengths | None = None) -> BoneLengths | None:
+def _percentile(x: np.ndarray, q: float) -> float | None:
+    x = x[np.isfinite(x)]
+    return float(np.percentile(x, q)) if x.size >= MIN_FRAMES else None
+
+
+def estimate_bone_lengths(cues: np.ndarray, base: BoneLengths | None = None,
+                          axes: np.ndarray | None = None) -> BoneLengths | None:
     """Scale ``base`` to the subject from 3D cues (F, 6, 3) metres (NaN = missing).
 
-    Returns None when fewer than ``MIN_FRAMES`` frames have the needed cues.
+    Three group scales, each from a distance the cues measure (the proportions inside a
+    group stay those of ``base``):
+
+    * trunk, neck-head, shoulder and hip widths: the median head - torso distance
+      (rigid in the model: trunk/2 + neck_head);
+    * thigh, shank, foot: the ``LEG_PERCENTILE`` hip - foot distance (legs near
+      straight) against thigh + |shank + foot|;
+    * upper arm, forearm, hand: the ``ARM_PERCENTILE`` shoulder - hand distance (arms
+      near straight) against their sum.
+
+    Hips and shoulders are placed with the body frames ``axes`` (F, 3, 3) (columns
+    right, forward, up, as ``analytic.body_axes``); without them, at the pelvis/neck on
+    the torso -> head line (then the widths are ignored). Missing groups keep the trunk
+    scale. Returns None when the head - torso distance has fewer than ``MIN_FRAMES`` frames.
     """
     base = base or BoneLengths()
     cues = np.asarray(cues, dtype=np.float64).reshape(-1, 6, 3)
-    rest = body_model(base).rest_positions()
-    ratios = []
-    ht = np.linalg.norm(cues[:, C_HEAD] - cues[:, C_TORSO], axis=1)
-    ht = ht[np.isfinite(ht)]
-    if ht.size >= MIN_FRAMES:
-        ratios.append(np.median(ht) / np.linalg.norm(rest[J["head"]] - rest[J["torso"]]))
-    for c, jn in ((C_FOOT_L, "foot_l"), (C_FOOT_R, "foot_r")):
-        tf = np.linalg.norm(cues[:, c] - cues[:, C_TORSO], axis=1)
-        tf = tf[np.isfinite(tf)]
-        if tf.size >= MIN_FRAMES:
-            ratios.append(np.percentile(tf, LEG_PERCENTILE) / np.linalg.norm(rest[J[jn]] - rest[J["torso"]]))
-    if not ratios:
+    up = cues[:, C_HEAD] - cues[:, C_TORSO]
+    ht = _percentile(np.linalg.norm(up, axis=1), 50.0)
+    if ht is None:
         return None
-    return base.scaled(float(np.median(ratios)))
+    s_trunk = ht / (base.trunk_m / 2 + base.neck_head_m)
+    tr = base.scaled(s_trunk)
+    if axes is None:
+        unit_up = up / np.linalg.norm(up, axis=1, keepdims=True)
+        right = np.zeros_like(up)
+    else:
+        axes = np.asarray(axes, dtype=np.float64).reshape(-1, 3, 3)
+        unit_up, right = axes[:, :, 2], axes[:, :, 0]
+    pelvis = cues[:, C_TORSO] - unit_up * (tr.trunk_m / 2)
+    neck = cues[:, C_TORSO] + unit_up * (tr.trunk_m / 2)
+    scales = {}
+    rest = body_model(base).rest_positions()
+    knee_foot = float(np.linalg.norm(rest[J["foot_r"]] - rest[J["knee_r"]]))
+    groups = (("leg", pelvis, tr.hip_half_width_m, (C_FOOT_L, C_FOOT_R), LEG_PERCENTILE, base.thigh_m + knee_foot),
+              ("arm", neck, tr.shoulder_half_width_m, (C_HAND_L, C_HAND_R), ARM_PERCENTILE,
+               base.upper_arm_m + base.forearm_m + base.hand_m))
+    for name, centre, half, (cl, cr), q, model_len in groups:
+        d = np.concatenate([np.linalg.norm(cues[:, cl] - (centre - right * half), axis=1),
+                            np.linalg.norm(cues[:, cr] - (centre + right * half), axis=1)])
+        obs = _percentile(d, q)
+        scales[name] = s_trunk if obs is None else max(0.5, obs / model_len)
+    s_leg, s_arm = scales["leg"], scales["arm"]
+    return replace(tr, thigh_m=base.thigh_m * s_leg, shank_m=base.shank_m * s_leg, foot_m=base.foot_m * s_leg,
+                   upper_arm_m=base.upper_arm_m * s_arm, forearm_m=base.forearm_m * s_arm,
+                   hand_m=base.hand_m * s_arm)

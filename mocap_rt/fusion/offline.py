@@ -46,9 +46,9 @@ class ProcessOutput:
 
 def _resolve_early(tracker: BodyTracker, results: list[FusionResult], first_calibrated: int | None) -> None:
     """Re-solve frames before calibration with the final bone lengths (in place)."""
-    if tracker.config.bone_lengths is not None or not tracker.calibrated:
+    if tracker.config.bone_lengths is not None or not tracker.calibrated or first_calibrated is None:
         return
-    stop = len(results) if first_calibrated is None else first_calibrated
+    stop = first_calibrated
     last = None
     for r in results[:stop]:
         if np.isfinite(r.cues_ik).all() and r.axes is not None:
@@ -72,6 +72,8 @@ def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool 
         if tracker.calibrated and not was:
             first_cal = len(results)
         predictions = tracker.predict(frame + 1)
+    if first_cal is None and tracker.finish_calibration():  # a clip shorter than calibration_s
+        first_cal = len(results)
     _resolve_early(tracker, results, first_cal)
     return results
 

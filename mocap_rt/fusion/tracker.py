@@ -143,6 +143,7 @@ class BodyTracker:
         self._centers = np.array([c.center for c in self.cameras])
         self.filter = CueFilter(N_CUES, config.filter)
         self._calib: list[np.ndarray] = []
+        self._calib_axes: list[np.ndarray] = []
         self.calibrated = config.bone_lengths is not None
         self._set_lengths(config.bone_lengths or BoneLengths())
         self._right: np.ndarray | None = None
@@ -235,18 +236,29 @@ class BodyTracker:
         """BVH motion row of a pose of this tracker's model (both presets share the hierarchy)."""
         return bvh_frame(self.model_full if self.config.ik == "ccd" else self.model, root, angles)
 
-    def _maybe_calibrate(self, X: np.ndarray) -> None:
+    def finish_calibration(self) -> bool:
+        """Estimate the bone lengths now from the frames seen so far (e.g. a clip shorter
+        than ``calibration_s``); True if the lengths are (now) calibrated."""
+        if not self.calibrated and self._calib:
+            self._calibrate()
+        return self.calibrated
+
+    def _maybe_calibrate(self, X: np.ndarray, axes: np.ndarray | None) -> None:
         if self.calibrated:
             return
-        self._calib.append(X.copy())
-        if len(self._calib) < self.config.calibration_s * self.config.fps:
-            return
-        est = estimate_bone_lengths(np.array(self._calib), self.lengths)
+        if axes is not None:
+            self._calib.append(X.copy())
+            self._calib_axes.append(axes)
+        if len(self._calib) >= self.config.calibration_s * self.config.fps:
+            self._calibrate()
+
+    def _calibrate(self) -> None:
+        est = estimate_bone_lengths(np.array(self._calib), BoneLengths(), np.array(self._calib_axes))
         self._calib.clear()
+        self._calib_axes.clear()
         if est is None:
             return
-        log.info("bone lengths estimated from the cues: scale %.3f of the default adult",
-                 est.trunk_m / BoneLengths().trunk_m)
+        log.info("bone lengths estimated from the cues: %s", est)
         self._set_lengths(est)
         self.calibrated = True
 
@@ -266,7 +278,6 @@ class BodyTracker:
         filt = np.where(self.filter.alive[:, None], self.filter.pos, np.nan)
         measured = np.where(valid[:, None], filt if self.config.use_filtered else X, np.nan)
         cues_ik = np.where(valid[:, None], measured, filt)
-        self._maybe_calibrate(np.where(valid[:, None], X, np.nan))
         t2 = time.perf_counter()
         timings["filter"] = (t2 - t1) * 1e3
         joints = np.full((N_JOINTS, 3), np.nan)
@@ -281,6 +292,7 @@ class BodyTracker:
             pan = pan_angle(axes)
             self._last_pose = (root, angles)
             joint_valid = _joint_validity(have)
+        self._maybe_calibrate(np.where(valid[:, None], X, np.nan), axes)
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
         if self._last_pose is not None:
