@@ -135,11 +135,13 @@ def plot_synthetic(errors, noise_levels, methods, out_dir: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 4, figsize=(16, 4), sharey=False)
+    colours = plt.get_cmap("tab10")
     for ax, cond in zip(axes, CONDITIONS):
-        for m in methods:
+        for k, m in enumerate(methods):  # one colour per method; dashed = raw markers, solid = after step A
             for rigid, style in ((False, "--"), (True, "-")):
                 y = [100 * np.mean(errors[(cond[0], cond[1], n, rigid)][m]) for n in noise_levels]
-                ax.plot([100 * n for n in noise_levels], y, style, label=f"{m}{' +rigid' if rigid else ''}")
+                ax.plot([100 * n for n in noise_levels], y, style, color=colours(k % 10),
+                        label=f"{m}{' +rigid' if rigid else ''}")
         ax.set_title(CONDITION_LABEL[cond])
         ax.set_xlabel("noise, % of segment length")
     axes[0].set_ylabel("joint-centre error, % of segment length")
@@ -187,12 +189,14 @@ def run_real(methods: list[str], out_dir: Path) -> None:
         for bone in results[methods[0]].bone_lengths(segs):
             a, b = bone.joint_a, bone.joint_b
             ja, jb = segs.joint(a), segs.joint(b)
-            if (a not in moving and b not in moving) or ja.child not in (jb.parent,) and jb.child not in (ja.parent,):
+            chained = ja.child == jb.parent or jb.child == ja.parent
+            if not chained or (a not in moving and b not in moving):
                 continue  # sibling joints (same parent) are trivially rigid for parent-fixed methods
             stats = {m: next(x for x in results[m].bone_lengths(segs) if (x.joint_a, x.joint_b) == (a, b))
                      for m in methods}
             best = min(methods, key=lambda m: stats[m].std_m)
-            flag = "" if (a in moving and b in moving) else f"  ({a if a not in moving else b} moves < {MIN_ROM_DEG:.0f} deg)"
+            still = b if a in moving else a
+            flag = "" if (a in moving and b in moving) else f"  ({still} moves < {MIN_ROM_DEG:.0f} deg)"
             print(f"  {a + '-' + b:<22}" + "".join(f"{stats[m].mean_m * 1e3:8.1f}±{stats[m].std_m * 1e3:5.2f}  "
                                                    for m in methods) + f" {best}{flag}")
         plot_real(data, segs, results, moving, out_dir / f"joint_centres_{path.stem}.png")

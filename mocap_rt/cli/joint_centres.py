@@ -22,7 +22,9 @@ def register(subparsers) -> None:
                    help="segment definition TOML ([segments.NAME] markers, [joints.NAME] parent/child)")
     p.add_argument("--out", type=Path, required=True, help="output TRC with one marker per joint")
     p.add_argument("--method", choices=METHOD_CHOICES, default="patent",
-                   help="patent (default) = the patent's nonlinear objective from the 3+3 linear start, used symmetrically; patent32/patent31 = its one-sided 3+2/3+1 forms; linear = 3+3 linear; baselines score, sphere, obrien")
+                   help="patent (default): the patent's nonlinear objective from the 3+3 linear start, used "
+                        "symmetrically; patent32/patent31: its one-sided 3+2/3+1 forms; linear: the 3+3 linear "
+                        "solution; baselines: score, sphere, obrien")
     p.add_argument("--no-rigid", action="store_true", help="skip the rigid (Procrustes) preprocessing")
     p.add_argument("--similarity", action="store_true",
                    help="rigid preprocessing with a per-frame scale (the patent's similarity model)")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mocap_rt.cli import main
-from mocap_rt.markers.io import read_trc, write_trc
+from mocap_rt.markers.io import read_c3d, read_trc, write_trc
 from mocap_rt.markers.segments import dumps_segments, shipped_segments_path
 from mocap_rt.markers.synthetic import simulate_body
 
@@ -47,7 +47,7 @@ def test_cli_on_shared_vicon_hip_trial(data_dir, tmp_path, capsys, method):
     assert 0.35 < np.nanmean(thigh) < 0.55
     assert np.nanstd(thigh) < 0.005
     # the hip centre is below and lateral of mid-ASIS by a few cm (this file is -Z up)
-    markers = __import__("mocap_rt.markers.io", fromlist=["read_c3d"]).read_c3d(trial)
+    markers = read_c3d(trial)
     mid_asis = np.nanmean(markers.select(["LASI", "RASI"]), axis=1)
     offset = np.nanmean(np.linalg.norm(hip - mid_asis, axis=1))
     assert 0.05 < offset < 0.2
@@ -55,7 +55,8 @@ def test_cli_on_shared_vicon_hip_trial(data_dir, tmp_path, capsys, method):
 
 def test_cli_reports_unknown_markers_with_exit_2(data_dir, tmp_path, capsys):
     seg = tmp_path / "s.toml"
-    seg.write_text('[segments.a]\nmarkers = ["LASI", "RASI", "NOPE"]\n[segments.b]\nmarkers = ["RTHI", "RKNE", "RTHIB"]\n'
+    seg.write_text('[segments.a]\nmarkers = ["LASI", "RASI", "NOPE"]\n'
+                   '[segments.b]\nmarkers = ["RTHI", "RKNE", "RTHIB"]\n'
                    '[joints.j]\nparent = "a"\nchild = "b"\n')
     trial = data_dir / "markers/biobuddy_vicon_P01_lightweight/Test_func_rhip.c3d"
     rc = main(["joint-centres", str(trial), "--segments", str(seg), "--out", str(tmp_path / "o.trc")])
