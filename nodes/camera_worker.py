@@ -164,7 +164,10 @@ def main(argv: list[str] | None = None) -> int:
         try:
             backgrounds = source.backgrounds()
             perceiver = make_perceiver(camera, backgrounds, args.perception_config)
-            perceiver.process(backgrounds[0], 0, None)   # warm-up: JIT compile, caches
+            # warm-up (JIT, caches, the replay's first video segment) on a throw-away
+            # perceiver, so the first triggered frame is as fast as any other
+            warm = make_perceiver(camera, backgrounds, args.perception_config)
+            warm.process(source.grab(0).image if not source.live else backgrounds[0], 0, None)
             if args.publish_frames and source.live:
                 session.put(keys.background(camera.name),
                             Background(keys.rig, camera.name, backgrounds).to_msgpack())

@@ -96,6 +96,12 @@ class FrameGatherer:
         pf.cues[msg.camera] = msg.cues
         pf.t_first_ns = pf.t_first_ns or now_ns
 
+    def assume_all_live(self, now_ns: int) -> None:
+        """At start every rig camera counts as live: the first frames wait for all of them
+        (up to the deadline) instead of completing with whichever answered first."""
+        for c in self.cameras:
+            self.last_seen.setdefault(c, now_ns)
+
     def live(self, now_ns: int) -> set[str]:
         return {c for c, t in self.last_seen.items() if now_ns - t <= self.liveness_ns}
 
@@ -191,6 +197,7 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
     """The fusion loop until ``rt.stop``."""
     rig_cameras = list(rig.names)
     gather = FrameGatherer(rig_cameras, deadline_frac)
+    gather.assume_all_live(time.monotonic_ns())
     inbox: queue.SimpleQueue = queue.SimpleQueue()
 
     def on_trigger(sample) -> None:

@@ -15,6 +15,7 @@ import json
 import logging
 import math
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -61,10 +62,35 @@ class RunConfig:
     extra_node_args: dict = field(default_factory=dict)   # node role -> extra argv
 
 
+PORT_RANGE = (20000, 32000)    # listen ports are drawn here, below the kernel's ephemeral range
+
+
+def _ephemeral_range() -> tuple[int, int]:
+    try:
+        lo, hi = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
+        return int(lo), int(hi)
+    except (OSError, ValueError):
+        return 32768, 60999
+
+
+_rng = random.Random()
+
+
 def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A loopback TCP port that is free now and outside the ephemeral range, so that no
+    outgoing connection of another process can take it before our node binds it."""
+    lo_e, hi_e = _ephemeral_range()
+    for _ in range(1000):
+        port = _rng.randrange(*PORT_RANGE)
+        if lo_e <= port <= hi_e:
+            continue
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError("no free TCP port found for the service")
 
 
 def _die_with_parent() -> None:
@@ -179,7 +205,8 @@ class Launcher:
             if live and cfg.record:
                 argv.append("--publish-frames")
             plan.append((f"worker-{cam}", "camera", argv))
-        sync_argv = ["-m", "nodes.sync", "--fps", str(self.trigger_fps)]
+        # sync connects to every other node and to the monitor: wait for all those links
+        sync_argv = ["-m", "nodes.sync", "--fps", str(self.trigger_fps), "--expect-peers", str(len(plan) + 1)]
         if self.n_replay_frames and cfg.duration_s is None:
             sync_argv += ["--frames", str(self.n_replay_frames)]
         plan.append(("sync", "sync", sync_argv))

@@ -24,6 +24,8 @@ from nodes.transport import open_session
 log = logging.getLogger(__name__)
 
 SPIN_S = 0.0005               # final busy-wait before a trigger, for sub-ms punctuality
+PEER_WAIT_S = 10.0            # --expect-peers: wait at most this long for the links
+DECLARE_SETTLE_S = 0.2        # after the links are up, let subscriber declarations arrive
 MAX_FREE_RUN_WAIT_S = 0.25    # free-running: re-trigger if no pose came back by then
 
 
@@ -53,6 +55,21 @@ def sleep_until(t_ns: int, stop: threading.Event) -> None:
         if left > SPIN_S:
             stop.wait(left - SPIN_S)
         # else spin
+
+
+def wait_for_peers(session, n: int, rt: NodeRuntime) -> int:
+    """Wait until ``n`` peers are connected (or ``PEER_WAIT_S``): a trigger sent before the
+    links are up would be lost. Returns the number of peers seen."""
+    t_end = time.monotonic() + PEER_WAIT_S
+    seen = 0
+    while not rt.stop.is_set() and time.monotonic() < t_end:
+        seen = len(list(session.info.peers_zid()))
+        if seen >= n:
+            rt.stop.wait(DECLARE_SETTLE_S)
+            return seen
+        rt.stop.wait(0.02)
+    log.warning("sync: only %d of %d peers connected after %.0f s; triggering anyway", seen, n, PEER_WAIT_S)
+    return seen
 
 
 def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame: int,
@@ -118,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=None, help="stop after this many triggers")
     p.add_argument("--start-frame", type=int, default=0)
     p.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before the first trigger")
+    p.add_argument("--expect-peers", type=int, default=0,
+                   help="before the first trigger, wait until this many peers are connected")
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     rig = load_rig(args)
@@ -127,6 +146,8 @@ def main(argv: list[str] | None = None) -> int:
         rt = NodeRuntime(session, keys, args.node, "sync")
         rt.install_signal_handlers()
         rt.publish_status("ready", force=True)
+        if args.expect_peers > 0:
+            wait_for_peers(session, args.expect_peers, rt)
         if args.start_delay > 0:
             rt.stop.wait(args.start_delay)
         sent = run_sync(session, keys, fps, args.frames, args.start_frame, rt)

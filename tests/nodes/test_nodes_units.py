@@ -294,3 +294,13 @@ def test_output_paths_never_reuse_existing_files(tmp_path):
     a[1].write_text("x")
     b = output_paths(tmp_path)
     assert b[0].name == "poses_001.npz" and b[2].name == "stream_001"
+
+
+def test_gatherer_first_frames_wait_for_every_rig_camera():
+    g = FrameGatherer(["a", "b"], deadline_frac=0.5, liveness_s=0.5)
+    g.assume_all_live(0)
+    g.on_trigger(Trigger("r", 0, 0, 0, 40 * MS))
+    g.on_cues(_cues("a", 0, 0), 1 * MS)
+    assert g.ready(2 * MS) == []                       # b is presumed live: wait for it
+    g.on_cues(_cues("b", 0, 0), 3 * MS)
+    assert set(g.ready(3 * MS)[0].cues) == {"a", "b"}
