@@ -204,38 +204,55 @@ def run_real(methods: list[str], out_dir: Path) -> None:
 
 
 def plot_real(data, segs, results, moving, path: Path) -> None:
+    """Per moving joint: child markers and each method's centre over time (x), the centre and
+    child-marker trajectories in the parent's frame (3D), and the bone length over time."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from mocap_rt.markers.rigid import fit_rigid_segment, to_local
+
     joints = moving or list(segs.joint_names[:1])
-    fig, axes = plt.subplots(len(joints), 2, figsize=(13, 3.2 * len(joints)), squeeze=False)
+    fig = plt.figure(figsize=(18, 3.6 * len(joints)))
+    colours = plt.get_cmap("tab10")
     t = data.times_s
-    for row, j in zip(axes, joints):
+    for row, j in enumerate(joints):
         joint = segs.joint(j)
-        ax = row[0]
-        for name in segs.segments[joint.child]:  # child markers and the centres, vertical-ish axis = largest range
-            xyz = data.select([name])[:, 0]
-            ax.plot(t, xyz[:, 0] * 1e3, color="0.7", lw=0.6)
-        for m, res in results.items():
-            ax.plot(t, res.centres[:, res.names.index(j), 0] * 1e3, lw=1.0, label=m)
-        ax.set_title(f"{j}: x of {joint.child} markers (grey) and of the centre per method")
+        child = data.select(segs.segments[joint.child])
+        ax = fig.add_subplot(len(joints), 3, 3 * row + 1)
+        for k in range(child.shape[1]):
+            ax.plot(t, child[:, k, 0] * 1e3, color="0.7", lw=0.6)
+        for n, (m, res) in enumerate(results.items()):
+            ax.plot(t, res.centres[:, res.names.index(j), 0] * 1e3, lw=1.0, color=colours(n % 10), label=m)
+        ax.set_title(f"{j}: x of {joint.child} markers (grey) and centres")
         ax.set_xlabel("time, s")
         ax.set_ylabel("x, mm")
         ax.legend(fontsize=6)
-        ax = row[1]
-        for nb in segs.neighbours(j):
-            for m, res in results.items():
+        # 3D, parent frame: the child markers sweep spheres about the joint centre
+        fit = fit_rigid_segment(data.select(segs.segments[joint.parent]))
+        ax = fig.add_subplot(len(joints), 3, 3 * row + 2, projection="3d")
+        local = to_local(fit.scale, fit.rotation, fit.translation, child) * 1e3  # (F, k, 3) mm
+        for k in range(local.shape[1]):
+            ax.plot(local[:, k, 0], local[:, k, 1], local[:, k, 2], color="0.6", lw=0.4)
+        for n, (m, res) in enumerate(results.items()):
+            c = to_local(fit.scale, fit.rotation, fit.translation, res.centres[:, [res.names.index(j)]])[:, 0] * 1e3
+            ax.scatter(*np.nanmean(c, axis=0), color=colours(n % 10), s=30, label=m)
+        ax.set_title(f"{j} in the {joint.parent} frame (mm)")
+        ax.tick_params(labelsize=6)
+        ax = fig.add_subplot(len(joints), 3, 3 * row + 3)
+        chain = [nb for nb in segs.neighbours(j) if joint.child == segs.joint(nb).parent or
+                 segs.joint(nb).child == joint.parent] or list(segs.neighbours(j))
+        for nb in chain[:1]:
+            for n, (m, res) in enumerate(results.items()):
                 d = np.linalg.norm(res.centres[:, res.names.index(j)] - res.centres[:, res.names.index(nb)], axis=1)
-                ax.plot(t, d * 1e3, lw=0.8, label=f"{m}")
+                ax.plot(t, d * 1e3, lw=0.8, color=colours(n % 10), label=m)
             ax.set_title(f"bone {j}-{nb} over the trial")
-            break
         ax.set_xlabel("time, s")
         ax.set_ylabel("length, mm")
         ax.legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 

@@ -92,3 +92,14 @@ def test_trial_drops_a_never_seen_marker_and_names_segments_that_cannot_be_fitte
     pos[:, data.index("THIGH_R3")] = np.nan  # now only 2 remain
     with pytest.raises(ValueError, match=r"segment 'thigh_r'.*never seen: \['THIGH_R3', 'THIGH_R4'\]"):
         joint_centres_for_trial(type(data)(data.labels, pos, data.rate_hz), segs, "score")
+
+
+def test_relative_rotation_range_of_a_known_swing():
+    from mocap_rt.markers.trial import relative_rotation_range_deg
+
+    angles = np.linspace(-30.0, 30.0, 201)  # uniform swing about one axis, mean 0
+    rot_child = Rotation.from_euler("x", angles[:, None], degrees=True).as_matrix()
+    rot_parent = np.broadcast_to(Rotation.from_euler("z", 40, degrees=True).as_matrix(), rot_child.shape)
+    rot_child = np.matmul(rot_parent, rot_child)
+    # 95th percentile of |angle| for a uniform -30..30 swing is 28.5 deg
+    assert relative_rotation_range_deg(rot_parent, rot_child) == pytest.approx(28.5, abs=0.2)
