@@ -25,6 +25,19 @@ def _bgr(text: str) -> tuple[float, float, float]:
     return vals  # type: ignore[return-value]
 
 
+def _light(text: str):
+    """AZ,EL,INTENSITY[,noshadow] -> (azimuth_deg, elevation_deg, intensity, casts_shadow)."""
+    parts = text.split(",")
+    try:
+        az, el, inten = (float(v) for v in parts[:3])
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"light must be AZ_DEG,EL_DEG,INTENSITY[,noshadow], got {text!r}") from None
+    if len(parts) > 4 or (len(parts) == 4 and parts[3] != "noshadow") or not 3 <= el <= 90 or inten < 0:
+        raise argparse.ArgumentTypeError(f"light {text!r}: elevation 3..90 deg, intensity >= 0, "
+                                         "optional 4th field 'noshadow'")
+    return az, el, inten, len(parts) == 3
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "synth", help="render a multi-camera studio recording with ground truth from a BVH clip",
@@ -50,6 +63,9 @@ def register(subparsers) -> None:
     p.add_argument("--wb-jitter", type=float, default=0.03, help="per-camera white-balance spread (fraction)")
     p.add_argument("--no-shadows", action="store_true", help="do not cast the body's shadow on the floor")
     p.add_argument("--ambient", type=float, default=None, help="ambient light level (default: the scene's)")
+    p.add_argument("--light", type=_light, action="append", default=None, metavar="AZ,EL,I[,noshadow]",
+                   help="directional light (azimuth from +X towards +Y and elevation in degrees, intensity); "
+                        "repeat for several; replaces the default key + fill lights")
     p.add_argument("--shoe-bgr", type=_bgr, default=None, help="shoe colour B,G,R 0..255")
     p.add_argument("--codec", choices=("MJPG", "XVID", "mp4v", "FFV1"), default="MJPG", help="video codec")
     p.add_argument("--jpeg-quality", type=int, default=95, help="MJPG quality (video compression)")
@@ -85,6 +101,16 @@ def run(args: argparse.Namespace) -> int:
     scene = StudioScene()
     if args.ambient is not None:
         scene = dataclasses.replace(scene, ambient=args.ambient)
+    if args.light:
+        import math
+
+        from mocap_rt.studio.scene import Light
+
+        lights = []
+        for az, el, inten, shadow in args.light:
+            a, e = math.radians(az), math.radians(el)
+            lights.append(Light((math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)), inten, shadow))
+        scene = dataclasses.replace(scene, lights=tuple(lights))
     bar = None if args.no_progress else tqdm(unit="frame", desc="synth")
 
     def progress(done: int) -> None:

@@ -115,7 +115,8 @@ def test_cli_desktop_rig(data_dir, tmp_path, capsys):
     out = tmp_path / "desk"
     code = cli_main(["synth", "--motion", str(data_dir / "bvh" / "bandai_namco" / "dataset-1_bye_normal_001.bvh"),
                      "--rig", "desktop", "--size", "160x120", "--fps", "60", "--seconds", "0.25",
-                     "--seed", "0", "--out", str(out), "--no-progress", "--no-truth-masks"])
+                     "--seed", "0", "--out", str(out), "--no-progress", "--no-truth-masks",
+                     "--light", "30,60,0.5", "--light", "200,40,0.2,noshadow", "--flicker", "0.05"])
     assert code == 0
     rec = Recording(out)
     assert rec.camera_names == ["cam_1", "cam_2"] and rec.fps == 60.0 and rec.n_frames == 15
@@ -125,6 +126,8 @@ def test_cli_desktop_rig(data_dir, tmp_path, capsys):
     assert (vis[:, :, 0] > 0.5).all()
     assert "wrote" in capsys.readouterr().out
     assert cli_main(["synth", "--motion", str(tmp_path / "missing.bvh"), "--out", str(tmp_path / "x")]) == 2
+    with pytest.raises(SystemExit):
+        cli_main(["synth", "--motion", "x.bvh", "--out", "y", "--light", "30,-5,1"])
     assert cli_main(["synth", "--motion", str(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh"),
                      "--out", str(out)]) == 2  # refuses to overwrite
 
