@@ -39,6 +39,8 @@ SUPPORTED_VERSIONS = (1,)
 DEFAULT_CODEC = "MJPG"  # intra-only: exact seeks, a cut file loses only its own frames
 DEFAULT_JPEG_QUALITY = 95
 DEFAULT_SEGMENT_S = 1.0
+# Forward skips up to this many frames are read through instead of seeking.
+_MAX_GRAB_SKIP = 8
 _CODEC_EXT = {"MJPG": ".avi", "XVID": ".avi", "FFV1": ".avi", "mp4v": ".mp4"}
 
 
@@ -350,7 +352,10 @@ class Recording:
                 cur[1].release()
             cur = (seg, self._open(name, seg), 0)
         cap = cur[1]
-        if cur[2] != pos:
+        if 0 < pos - cur[2] <= _MAX_GRAB_SKIP:
+            for _ in range(pos - cur[2]):  # a short skip forward: demuxing beats a seek
+                cap.grab()
+        elif cur[2] != pos:
             cap.set(cv2.CAP_PROP_POS_FRAMES, pos)
         ok, img = cap.read()
         if not ok or img is None:
