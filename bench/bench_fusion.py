@@ -21,7 +21,6 @@ frontal pair; analytic IK vs CCD refinement; truth vs estimated bone lengths; th
 from __future__ import annotations
 
 import argparse
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -73,17 +72,16 @@ def projected_cues(rig, cues_3d: np.ndarray, noise_px: float, rng) -> list[dict]
 
 
 def track(rig, frames_cues: list[dict], config: FusionConfig):
+    """Run the tracker (with predictions, and the re-solve of the frames before the bone
+    lengths were estimated, as ``mocap-rt process`` does)."""
+    from mocap_rt.fusion.offline import run_tracker
+
     tracker = BodyTracker(rig, config)
-    res, ms = [], []
-    for f, cues in enumerate(frames_cues):
-        t0 = time.perf_counter()
-        r = tracker.step(f, cues)
-        tracker.predict(f + 1)
-        ms.append((time.perf_counter() - t0) * 1e3)
-        res.append(r)
+    res = run_tracker(tracker, lambda i, pred: (i, frames_cues[i]), len(frames_cues), progress=False)
     cues = np.array([r.cues_3d for r in res])
     joints = np.array([np.where(r.joint_valid[:, None], r.joints, np.nan) for r in res])
-    return cues, joints, np.array(ms), np.array([r.timings_ms["total"] for r in res])
+    tms = np.array([r.timings_ms["total"] for r in res])
+    return cues, joints, tms, tms
 
 
 def errors(cues, joints, t_cues, t_joints, skip: int = 0, joint_idx=None):
