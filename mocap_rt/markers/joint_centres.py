@@ -88,6 +88,15 @@ def _lstsq(lhs: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, float]:
     return sol / col, cond
 
 
+def _check_pair(parent: np.ndarray, child: np.ndarray, method: str) -> None:
+    """Both (F, k>=3, 3) with the same F, else a ValueError naming the method and shapes."""
+    ok = (parent.ndim == 3 and child.ndim == 3 and parent.shape[2] == 3 and child.shape[2] == 3
+          and parent.shape[0] == child.shape[0] and parent.shape[1] >= 3 and child.shape[1] >= 3)
+    if not ok:
+        raise ValueError(f"{method}: parent and child must be (F, k>=3, 3) with the same F, "
+                         f"got {parent.shape} and {child.shape}")
+
+
 def _need_frames(n: int, method: str) -> None:
     if n < MIN_FRAMES:
         raise ValueError(f"{method}: only {n} frames with the needed markers (need >= {MIN_FRAMES})")
@@ -99,6 +108,7 @@ def linear_33(parent: np.ndarray, child: np.ndarray) -> JointCentreFit:
     Residual: RMS distance between the parent- and child-defined centres.  The centre is
     their midpoint (the parent one alone where the child markers are missing).
     """
+    _check_pair(parent, child, "linear")
     p, c = parent[:, :3], child[:, :3]
     a_mat, b_mat = _basis(p), _basis(c)
     ok = _frames_ok(p, c)
@@ -121,6 +131,7 @@ def _patent_nonlinear(parent: np.ndarray, child: np.ndarray, n_child: int, name:
     J_i = P1_i + A_i [a b c]^T.  Initial value: the linear 3+3 solution (step C).
     Residual reported: RMS of (||J_i - C_k,i|| - r_k), metres.
     """
+    _check_pair(parent, child, name)
     init = linear_33(parent, child)
     p = parent[:, :3]
     ck = child[:, :n_child]  # (F, m, 3) the most stable child markers
@@ -167,6 +178,7 @@ def patent_32(parent: np.ndarray, child: np.ndarray) -> JointCentreFit:
 
 def patent_symmetric(parent: np.ndarray, child: np.ndarray) -> JointCentreFit:
     """Patent step B in both directions with all markers (3+k), midpoint of the two centres."""
+    _check_pair(parent, child, "patent")
     fwd = _patent_nonlinear(parent, child, child.shape[1], "patent")
     bwd = _patent_nonlinear(child, parent, parent.shape[1], "patent")
     a, b = fwd.centre, bwd.centre
@@ -220,6 +232,7 @@ def _fixed_in_both(rp, tp, rc, tc, name: str) -> JointCentreFit:
 
 def score(parent: np.ndarray, child: np.ndarray) -> JointCentreFit:
     """SCoRE (Ehrig et al. 2006) with least-squares segment poses; residual: RMS gap."""
+    _check_pair(parent, child, "score")
     rp, tp = _ls_poses(parent)
     rc, tc = _ls_poses(child)
     return _fixed_in_both(rp, tp, rc, tc, "score")
@@ -227,6 +240,7 @@ def score(parent: np.ndarray, child: np.ndarray) -> JointCentreFit:
 
 def obrien(parent: np.ndarray, child: np.ndarray) -> JointCentreFit:
     """O'Brien et al. 2000 with one orthonormal triad per segment; residual: RMS gap."""
+    _check_pair(parent, child, "obrien")
     rp, tp = _triad_poses(parent)
     rc, tc = _triad_poses(child)
     return _fixed_in_both(rp, tp, rc, tc, "obrien")
@@ -239,6 +253,7 @@ def sphere(parent: np.ndarray, child: np.ndarray) -> JointCentreFit:
     centre solves  2 (sum_k C_k) c = sum_k (mean(|v|^2 v) - mean(|v|^2) mean(v)),
     C_k = covariance of marker k.  Residual: RMS of (||v_ik - c|| - r_k), metres.
     """
+    _check_pair(parent, child, "sphere")
     rp, tp = _ls_poses(parent)
     v = np.einsum("fba,fkb->fka", rp, child - tp[:, None, :])  # (F, k, 3) parent frame
     lhs = np.zeros((3, 3))

@@ -103,3 +103,9 @@ def test_relative_rotation_range_of_a_known_swing():
     rot_child = np.matmul(rot_parent, rot_child)
     # 95th percentile of |angle| for a uniform -30..30 swing is 28.5 deg
     assert relative_rotation_range_deg(rot_parent, rot_child) == pytest.approx(28.5, abs=0.2)
+
+
+@pytest.mark.parametrize("method", ALL)
+def test_bad_shapes_are_named(method):
+    with pytest.raises(ValueError, match=rf"{method}: parent and child must be \(F, k>=3, 3\)"):
+        METHODS[method](np.zeros((10, 2, 3)), np.zeros((10, 3, 3)))
