@@ -106,27 +106,30 @@ class FrameGatherer:
         return {c for c, t in self.last_seen.items() if now_ns - t <= self.liveness_ns}
 
     def ready(self, now_ns: int) -> list[PendingFrame]:
-        """Frames to fuse now, oldest first; frames overtaken by a ready newer one are dropped."""
+        """Frames to fuse now, oldest first.
+
+        A frame is ready when every live camera answered, or at its deadline if it has at
+        least one answer (a frame with none cannot make a pose, so it keeps waiting for a
+        late answer). Once a frame is ready, every older pending frame goes too: fused with
+        what it has, or dropped (counted) when it has nothing.
+        """
         live = self.live(now_ns)
-        out: list[PendingFrame] = []
-        for f in sorted(self.pending):
-            pf = self.pending[f]
-            complete = bool(pf.cues) and live <= set(pf.cues)
-            if complete or now_ns >= pf.deadline_ns:
-                out.append(pf)
-        if not out:
-            return out
-        newest = out[-1].frame
-        for f in [f for f in self.pending if f <= newest]:
+        ready = [f for f, pf in self.pending.items()
+                 if pf.cues and (live <= set(pf.cues) or now_ns >= pf.deadline_ns)]
+        if not ready:
+            return []
+        newest = max(ready)
+        older = sorted(f for f in self.pending if f <= newest)
+        out = [self.pending[f] for f in older if self.pending[f].cues]
+        self.frames_dropped += len(older) - len(out)
+        for f in older:
             del self.pending[f]
         self.last_done = max(self.last_done, newest)
-        # frames with no cues at all produce no pose: they are drops
-        kept = [pf for pf in out if pf.cues]
-        self.frames_dropped += len(out) - len(kept)
-        return kept
+        return out
 
     def next_deadline_ns(self) -> int | None:
-        return min((pf.deadline_ns for pf in self.pending.values()), default=None)
+        """The earliest deadline of a frame that has answers (others wait for answers)."""
+        return min((pf.deadline_ns for pf in self.pending.values() if pf.cues), default=None)
 
 
 # a standing person's cues (head, hand_l, hand_r, foot_l, foot_r, torso), metres, world

@@ -304,3 +304,21 @@ def test_gatherer_first_frames_wait_for_every_rig_camera():
     assert g.ready(2 * MS) == []                       # b is presumed live: wait for it
     g.on_cues(_cues("b", 0, 0), 3 * MS)
     assert set(g.ready(3 * MS)[0].cues) == {"a", "b"}
+
+
+def test_gatherer_fuses_an_older_partial_frame_before_a_newer_complete_one():
+    g = FrameGatherer(["a", "b"], deadline_frac=0.8, liveness_s=1.0)
+    g.assume_all_live(0)
+    g.on_trigger(Trigger("r", 5, 0, 0, 40 * MS))
+    g.on_trigger(Trigger("r", 6, 40 * MS, 0, 40 * MS))
+    g.on_cues(_cues("a", 5, 0), 41 * MS)          # frame 5: only a so far (deadline 32 ms ...
+    g.on_cues(_cues("a", 6, 40 * MS), 41 * MS)
+    g.on_cues(_cues("b", 6, 40 * MS), 41 * MS)     # ... frame 6 complete
+    out = g.ready(41 * MS)
+    assert [pf.frame for pf in out] == [5, 6] and set(out[0].cues) == {"a"}
+    assert g.frames_dropped == 0
+    # a frame without any answer waits past its deadline for a late one
+    g.on_trigger(Trigger("r", 7, 80 * MS, 0, 40 * MS))
+    assert g.ready(200 * MS) == [] and g.next_deadline_ns() is None
+    g.on_cues(_cues("b", 7, 80 * MS), 201 * MS)
+    assert [pf.frame for pf in g.ready(201 * MS)] == [7]
