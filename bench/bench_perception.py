@@ -372,7 +372,8 @@ def real_footage() -> None:
                     cv2.polylines(vis, [np.round(con).astype(np.int32)], True, (255, 0, 0), 1)
                 x, y, bw, bh = cues.bbox
                 cv2.rectangle(vis, (x, y), (x + bw, y + bh), (0, 255, 0), 1)
-                cv2.imwrite(str(out / f"{v.parent.name}_{v.stem}_f{f:03d}.png"), np.concatenate([img, vis], 1))
+                tag = "_".join(v.relative_to(data_root() / "multiview").with_suffix("").parts)
+                cv2.imwrite(str(out / f"{tag}_f{f:03d}.png"), np.concatenate([img, vis], 1))
         fr = np.mean(found, axis=0) * 100
         print(f"{str(v.relative_to(data_root() / 'multiview')):60s} {len(frames):6d} {np.mean(skin_frac) * 100:6.1f} "
               f"{'/'.join(f'{x:.0f}' for x in fr):>26s}")

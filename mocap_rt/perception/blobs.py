@@ -45,8 +45,9 @@ class BlobParams:
 
     min_area_px: float = 6.0            # fewer labelled pixels: blob lost this frame
     acquire_min_area_px: float = 10.0   # smallest region a lost blob is re-acquired from
-    gate_radius_factor: float = 2.0     # labelling gate = factor * blob radius ...
+    gate_radius_factor: float = 1.5     # labelling gate = factor * blob semi-major axis ...
     gate_min_px: float = 8.0            # ... but at least this
+    gate_unknown_px: float = 30.0       # gate while the blob's size is unknown
     gate_speed_factor: float = 1.0      # ... plus this times the 2D speed (px/frame)
     max_coast_frames: int = 3           # coast a lost blob this long before re-acquiring
     ellipse_scale: float = 2.0          # initial ellipse at 2 sigma (edge of a uniform ellipse)
@@ -102,7 +103,7 @@ class BlobTracker:
         self.__init__(self.roles, self.params)
 
     def predict_2d(self) -> tuple[np.ndarray, np.ndarray]:
-        """Constant-velocity 2D prediction: (xy (K, 2) NaN where untracked, radius (K,))."""
+        """Constant-velocity 2D prediction: (xy (K, 2) NaN where untracked, semi-major axis (K,) px)."""
         xy = self._xy + self._vel * (1 + self._coast)[:, None]
         xy[self._coast > self.params.max_coast_frames] = np.nan
         return xy, self._radius.copy()
@@ -132,11 +133,13 @@ class BlobTracker:
             centers, radius, visible = own_xy, own_r, np.ones(K, bool)
         else:
             centers = np.where(np.isfinite(pred_xy), pred_xy, own_xy)
-            radius = np.where(np.isfinite(pred_radius), pred_radius, own_r) if pred_radius is not None else own_r
+            # the larger of the predicted radius and the blob's own semi-major axis
+            radius = own_r if pred_radius is None else np.fmax(np.asarray(pred_radius, float), own_r)
             visible = np.ones(K, bool) if pred_visible is None else np.asarray(pred_visible, bool)
         centers = centers - (ox, oy)                                          # (K, 2) ROI px
         speed = np.hypot(*self._vel.T)
-        gate = np.maximum(p.gate_min_px, p.gate_radius_factor * np.nan_to_num(radius, nan=0.0))
+        gate = np.where(np.isfinite(radius), np.maximum(p.gate_min_px, p.gate_radius_factor * radius),
+                        p.gate_unknown_px)
         gate = gate + p.gate_speed_factor * speed
 
         bx, by, bw, bh = person_box_roi
@@ -184,6 +187,15 @@ class BlobTracker:
     # ------------------------------------------------------------------ internals
     def _label(self, skin_roi, box, centers, gate) -> np.ndarray:
         x0, y0, x1, y1 = box
+        ok = np.isfinite(centers).all(axis=1)
+        if not ok.any():
+            self._sums[:] = 0.0
+            return np.zeros(len(self.roles), bool)
+        # scan only the gates' bounding box
+        lo = np.floor((centers[ok] - gate[ok, None]).min(axis=0))
+        hi = np.ceil((centers[ok] + gate[ok, None]).max(axis=0)) + 1
+        x0, y0 = max(x0, int(lo[0])), max(y0, int(lo[1]))
+        x1, y1 = max(x0, min(x1, int(hi[0]))), max(y0, min(y1, int(hi[1])))
         label_moments(skin_roi, x0, y0, x1, y1, np.ascontiguousarray(centers, np.float64),
                       np.ascontiguousarray(gate * gate, np.float64), self._sums)
         return self._sums[:, 0] >= self.params.min_area_px
@@ -280,7 +292,8 @@ class BlobTracker:
                     self._vel[k] = 0.0
                 self._xy[k] = new
                 self._last_seen[k] = new
-                self._radius[k] = math.sqrt(max(out.area[k], 1.0) / math.pi)
+                # semi-major axis of the blob (2 sigma): elongated hands and shoes need it
+                self._radius[k] = 2.0 * math.sqrt(max(np.linalg.eigvalsh(out.cov[k])[-1], 0.25))
                 self._coast[k] = 0
             else:
                 self._coast[k] += 1

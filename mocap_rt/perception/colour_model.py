@@ -274,6 +274,59 @@ def _likelihood_kernel(img, mask, params, binary, out):  # pragma: no cover - nu
                 out[y, x] = np.exp(-e * inv2s)
 
 
+@numba.njit(cache=True, nogil=True)
+def _two_maps_kernel(img, mask, pa, pb, out_a, out_b):  # pragma: no cover - numba
+    """Binary maps of two models in one pass (the pipeline's skin + shoe maps)."""
+    h, w = mask.shape
+    for y in range(h):
+        for x in range(w):
+            out_a[y, x] = 0.0
+            out_b[y, x] = 0.0
+            if mask[y, x] == 0:
+                continue
+            b = np.float32(img[y, x, 0])
+            g = np.float32(img[y, x, 1])
+            r = np.float32(img[y, x, 2])
+            s = r + g + b
+            if s <= 0.0:
+                continue
+            i = s * np.float32(1.0 / 3.0)
+            rn = r / s
+            gn = g / s
+            for m in range(2):
+                p = pa if m == 0 else pb
+                if i < p[7] or i > p[8]:
+                    continue
+                mr = (p[0] * i + p[1]) * i
+                mg = (p[2] * i + p[3]) * i
+                mb = (p[4] * i + p[5]) * i
+                ms = mr + mg + mb
+                dr = rn - mr / ms
+                dg = gn - mg / ms
+                if dr * dr + dg * dg <= p[9]:
+                    if m == 0:
+                        out_a[y, x] = 1.0
+                    else:
+                        out_b[y, x] = 1.0
+
+
+def colour_maps_binary(image_bgr: np.ndarray, model_a: ColourModel, model_b: ColourModel,
+                       mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Binary maps (H, W) float32 of two models on ``mask`` pixels, one pass over the image.
+
+    Equal to ``likelihood_map(image, model, mask, binary=True)`` for each model.
+    """
+    img = np.asarray(image_bgr)
+    m = np.asarray(mask)
+    m = m.view(np.uint8) if m.dtype == bool else m.astype(np.uint8, copy=False)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or m.shape != img.shape[:2]:
+        raise ValueError(f"image (H, W, 3) uint8 and mask (H, W) required, got {img.shape} {img.dtype}, {m.shape}")
+    out_a = np.empty(m.shape, np.float32)
+    out_b = np.empty(m.shape, np.float32)
+    _two_maps_kernel(img, m, model_a.kernel_params(), model_b.kernel_params(), out_a, out_b)
+    return out_a, out_b
+
+
 def likelihood_map(image_bgr: np.ndarray, model: ColourModel, mask: np.ndarray | None = None,
                    out: np.ndarray | None = None, binary: bool = False) -> np.ndarray:
     """Per-pixel p(colour) (H, W) float32 of ``image_bgr`` (H, W, 3) uint8 BGR.

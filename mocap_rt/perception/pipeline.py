@@ -32,7 +32,7 @@ from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
 from mocap_rt.perception.background import (BackgroundModel, ChangeThresholds, change_mask,
                                             largest_component_filled)
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
-from mocap_rt.perception.colour_model import ColourModel, colour_model_from_spec, likelihood_map
+from mocap_rt.perception.colour_model import ColourModel, colour_maps_binary, colour_model_from_spec
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
 
 log = logging.getLogger(__name__)
@@ -167,8 +167,7 @@ class CameraPerceiver:
                               {"silhouette": (t1 - t0) * 1e3, "total": (t - t0) * 1e3})
         bx, by, bw, bh = box
         sub = img[by:by + bh, bx:bx + bw]
-        skin = likelihood_map(sub, self.skin_model, sil, binary=True)
-        shoe = likelihood_map(sub, self.shoe_model, sil, binary=True)
+        skin, shoe = colour_maps_binary(sub, self.skin_model, self.shoe_model, sil)
         t2 = time.perf_counter()
         top = self._top_point(sil)
         for tracker, idx, cmap in ((self.skin_tracker, _SKIN_IDX, skin), (self.shoe_tracker, _SHOE_IDX, shoe)):

@@ -115,3 +115,19 @@ def test_colour_model_cli_fits_images_and_masks(tmp_path):
     assert np.median(m.error_rgb(img[mask > 0][:, ::-1])) < 1e-5
     assert main(["colour-model", "fit", "--images", str(tmp_path / "a.png"), "--masks",
                  "--out", str(tmp_path / "y.toml")]) == 2
+
+
+def test_two_model_pass_equals_two_single_maps():
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (37, 41, 3), dtype=np.uint8)
+    mask = rng.random((37, 41)) < 0.7
+    a = ColourModel("a", TRUE_COEFFS, 4e-4, 4e-3, 30.0, 230.0)
+    b = default_colour_model("shoe")
+    # make sure both models accept something
+    img[:5, :5] = np.clip(a.model_rgb(np.array([120.0]))[0][::-1], 0, 255).astype(np.uint8)
+    img[5:10, :5] = (40, 150, 45)
+    from mocap_rt.perception.colour_model import colour_maps_binary
+    ma, mb = colour_maps_binary(img, a, b, mask)
+    np.testing.assert_array_equal(ma, likelihood_map(img, a, mask, binary=True))
+    np.testing.assert_array_equal(mb, likelihood_map(img, b, mask, binary=True))
+    assert ma.sum() > 0 and mb.sum() > 0
