@@ -134,6 +134,10 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
                 ok, jpg = cv2.imencode(".jpg", grab.image, [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_JPEG_QUALITY])
                 if ok:
                     preview_pub.put(Preview(keys.rig, name, trig.frame, jpg.tobytes()).to_msgpack())
+            try:
+                source.prefetch(trig.frame + 1)
+            except (OSError, ValueError) as exc:
+                log.warning("%s: prefetch of frame %d failed: %s", name, trig.frame + 1, exc)
             rt.publish_status()
     finally:
         for s in subs:
@@ -148,8 +152,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--perception-config", default=None, help="perception TOML (default: built-in)")
     p.add_argument("--preview-every", type=int, default=0, help="publish a JPEG every N frames (0 = never)")
     p.add_argument("--publish-frames", action="store_true", help="publish raw frames + backgrounds (recorder)")
+    p.add_argument("--cv-threads", type=int, default=1,
+                   help="OpenCV threads in this worker (one process per camera already runs in parallel)")
     args = p.parse_args(argv)
     setup_logging(args.log_level)
+    import cv2
+
+    cv2.setNumThreads(args.cv_threads)
     rig = load_rig(args)
     camera = rig[args.camera]
     node = args.node or f"worker-{camera.name}"

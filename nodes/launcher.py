@@ -39,6 +39,8 @@ RESTART_LIMIT = 10
 POLL_S = 0.05
 STATUS_LINE_PERIOD_S = 1.0
 DEFAULT_PREVIEW_EVERY = 3      # with a viewer: one JPEG per camera every 3 frames
+SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                     "NUMBA_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1"}
 
 
 @dataclass(frozen=True)
@@ -226,7 +228,9 @@ class Launcher:
     # ------------------------------------------------------------ processes
     def _spawn(self, node: NodeProc) -> None:
         logf = open(self.log_dir / f"{node.name}.log", "ab")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        # one compute thread per node: the nodes already run in parallel, and library thread
+        # pools in each of them (OpenCV, numba, BLAS) would only oversubscribe the cores
+        env = dict(os.environ, PYTHONUNBUFFERED="1", **SINGLE_THREAD_ENV)
         node.proc = subprocess.Popen([sys.executable] + node.argv, stdout=logf, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, env=env, start_new_session=True,
                                      preexec_fn=_die_with_parent)

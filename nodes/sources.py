@@ -9,8 +9,9 @@ Source specs (``--source``):
 * ``fake:REC_DIR`` — a *simulated live camera*: the recording's images produced in real
   time at its fps by a device object, read through the very same ``Grabber`` as V4L2.
 
-A source has ``camera`` (name), ``live`` (bool), ``grab(frame_id) -> Grab`` and
-``backgrounds() -> (B, H, W, 3) uint8``, ``close()``.
+A source has ``camera`` (name), ``live`` (bool), ``grab(frame_id) -> Grab``,
+``prefetch(frame_id)`` (replay: decode the next image between triggers; live: nothing),
+``backgrounds() -> (B, H, W, 3) uint8`` and ``close()``.
 """
 
 from __future__ import annotations
@@ -158,12 +159,23 @@ class ReplaySource:
         self.n_frames = int(self.recording.n_frames)
         if self.n_frames <= 0:
             raise ValueError(f"recording {rec_dir} has no frames")
+        self._next: tuple[int, np.ndarray] | None = None
 
     def grab(self, frame_id: int) -> Grab:
         idx = frame_id % self.n_frames
         t_mono, t_wall = time.monotonic_ns(), time.time_ns()
-        image = self.recording.read_frame(self.camera, idx)
+        if self._next is not None and self._next[0] == idx:
+            image = self._next[1]
+        else:
+            image = self.recording.read_frame(self.camera, idx)
+        self._next = None
         return Grab(image, t_mono, t_wall, idx)
+
+    def prefetch(self, frame_id: int) -> None:
+        """Decode the image of ``frame_id`` now (between triggers), like a camera whose next
+        frame is already in memory when the trigger comes: decoding leaves the critical path."""
+        idx = frame_id % self.n_frames
+        self._next = (idx, self.recording.read_frame(self.camera, idx))
 
     def backgrounds(self) -> np.ndarray:
         return np.asarray(self.recording.backgrounds(self.camera))
@@ -186,6 +198,9 @@ class LiveSource:
         self.grabber = Grabber(device, name=f"grab-{camera}")
         self._n_backgrounds = n_backgrounds
         self._last_seq = -1
+
+    def prefetch(self, frame_id: int) -> None:  # noqa: ARG002 - the grabber thread does this
+        pass
 
     def grab(self, frame_id: int) -> Grab:  # noqa: ARG002 - live: the newest frame, whatever the id
         g = self.grabber.latest(after_seq=-1)
