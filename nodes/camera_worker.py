@@ -144,7 +144,8 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             s.undeclare()
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser():
+    """The node's command line (also checked against the deploy units in the tests)."""
     p = base_parser(__doc__.splitlines()[0], "")
     p.add_argument("--camera", required=True, help="camera name in the rig")
     p.add_argument("--source", required=True, help="replay:REC_DIR | v4l2:/dev/videoN | fake:REC_DIR")
@@ -154,6 +155,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--publish-frames", action="store_true", help="publish raw frames + backgrounds (recorder)")
     p.add_argument("--cv-threads", type=int, default=1,
                    help="OpenCV threads in this worker (one process per camera already runs in parallel)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = build_parser()
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     import cv2

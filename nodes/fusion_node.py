@@ -247,12 +247,18 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
             s.undeclare()
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser():
+    """The node's command line (also checked against the deploy units in the tests)."""
     p = base_parser(__doc__.splitlines()[0], "fusion")
     p.add_argument("--deadline-frac", type=float, default=DEFAULT_DEADLINE_FRAC,
                    help="wait for late cameras at most this fraction of the frame period")
     p.add_argument("--fps", type=float, default=None,
                    help="frame rate of the frame ids (default rig metadata fps or 30)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = build_parser()
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     if not 0.0 < args.deadline_frac <= 1.0:

@@ -259,11 +259,17 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
         log.info("recorder: %d poses written to %s", len(poses), out_dir)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser():
+    """The node's command line (also checked against the deploy units in the tests)."""
     p = base_parser(__doc__.splitlines()[0], "recorder")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--fps", type=float, default=None, help="frame rate for BVH/stream (default rig metadata or 30)")
     p.add_argument("--raw", action="store_true", help="also record the raw multi-view stream (live sources)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = build_parser()
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     rig = load_rig(args)

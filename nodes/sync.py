@@ -129,7 +129,8 @@ def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame:
     return sent
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser():
+    """The node's command line (also checked against the deploy units in the tests)."""
     p = base_parser(__doc__.splitlines()[0], "sync")
     p.add_argument("--fps", type=float, default=None, help="trigger rate; 0 = free-run (default: rig metadata fps or 30)")
     p.add_argument("--frames", type=int, default=None, help="stop after this many triggers")
@@ -137,6 +138,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before the first trigger")
     p.add_argument("--expect-peers", type=int, default=0,
                    help="before the first trigger, wait until this many peers are connected")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = build_parser()
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     rig = load_rig(args)

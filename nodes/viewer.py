@@ -256,9 +256,15 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
             log.warning("viewer: flush failed: %s", exc)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser():
+    """The node's command line (also checked against the deploy units in the tests)."""
     p = base_parser(__doc__.splitlines()[0], "viewer")
     p.add_argument("--rerun", required=True, help="save:FILE.rrd | serve[:WEB_PORT[:GRPC_PORT]] | spawn | connect:URL")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = build_parser()
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     parse_rerun(args.rerun)
