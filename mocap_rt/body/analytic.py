@@ -48,7 +48,7 @@ class AnalyticConfig:
     walk_speed_mps: float = 0.4     # above this torso speed the walking direction counts
     walk_weight: float = 2.0        # weight of the walking direction at twice that speed
     pan_smoothing: float = 0.5      # 0 = no memory, -> 1 = keep the previous pan (walking)
-    still_pan_smoothing: float = 0.8  # the same when standing (feet/hands only: less reliable)
+    still_pan_smoothing: float = 0.5  # the same when standing (feet/hands only: less reliable)
     snap_standing: bool = False     # standing: take the feet/hands line modulo 90 deg near the previous pan
 
 

@@ -11,8 +11,12 @@ the three axes (isotropic measurement noise, white-acceleration process noise):
     F = [[1, dt], [0, 1]],  Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]],  R = r^2
 
 with ``q = accel_noise_mps2^2 * dt`` style spectral density ``accel_psd`` (m^2/s^3).
-A measurement farther than ``gate_m`` from the prediction is rejected unless the track
-has coasted for more than ``max_coast_s`` (then it restarts on the measurement).
+A measurement farther than ``gate_m`` from the prediction is rejected, unless it lies
+within ``gate_m`` of the last accepted measurement (the prediction ran off after a bad
+update) or the track has coasted for more than ``max_coast_s``: then the track
+restarts on the measurement.
+While coasting the velocity decays (``coast_velocity_decay_s``), so a lost cue stays
+near where it was last seen instead of drifting away.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ class FilterConfig:
     measurement_noise_m: float = 0.006  # r, std of a triangulated cue
     gate_m: float = 0.35               # innovation gate (distance to the prediction)
     max_coast_s: float = 0.5           # after this long without an update a track is dropped
+    coast_velocity_decay_s: float = 0.1  # a coasting track's velocity decays with this time constant
     initial_velocity_std_mps: float = 1.0
 
 
@@ -47,6 +52,7 @@ class CueFilter:
         self.cov = np.zeros((n, 2, 2))
         self.alive = np.zeros(n, dtype=bool)
         self.last_update_s = np.full(n, -np.inf)
+        self.last_meas = np.full((n, 3), np.nan)
         self.time_s: float | None = None
 
     def _propagate(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -69,16 +75,20 @@ class CueFilter:
         """
         cfg = self.config
         z = np.asarray(z, dtype=np.float64)
+        dt_step = 0.0
         if self.time_s is not None:
-            dt = max(0.0, time_s - self.time_s)
-            self.pos, self.vel, self.cov = self._propagate(dt)
+            dt_step = max(0.0, time_s - self.time_s)
+            self.pos, self.vel, self.cov = self._propagate(dt_step)
         self.time_s = time_s
         self.alive &= (time_s - self.last_update_s) <= cfg.max_coast_s
         has = np.isfinite(z).all(axis=1)
         innov = z - self.pos
         dist = np.linalg.norm(innov, axis=1)
         ok = has & self.alive & (dist <= cfg.gate_m)
-        start = has & ~self.alive
+        # a measurement near the last accepted one while the prediction has run off (after
+        # one bad measurement gave a wild velocity) restarts the track there
+        near_last = np.linalg.norm(z - self.last_meas, axis=1) <= cfg.gate_m
+        start = has & (~self.alive | (~ok & near_last))
         # Kalman update for accepted measurements (shared 2x2 covariance per point)
         S = self.cov[:, 0, 0] + cfg.measurement_noise_m ** 2
         K = self.cov[:, :, 0] / S[:, None]                          # (N, 2)
@@ -96,4 +106,9 @@ class CueFilter:
         self.alive |= start
         accepted = ok | start
         self.last_update_s[accepted] = time_s
+        self.last_meas[accepted] = z[accepted]
+        if self.time_s is not None and cfg.coast_velocity_decay_s > 0:
+            # coasting tracks slow down instead of flying off on a stale velocity
+            coasting = self.alive & ~accepted
+            self.vel[coasting] *= np.exp(-dt_step / cfg.coast_velocity_decay_s)
         return accepted

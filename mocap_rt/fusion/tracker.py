@@ -2,7 +2,8 @@
 
 ``BodyTracker.step(frame, cues)`` does, for one frame:
 
-1. gather the 2D cues of the cameras present (absent cameras are simply missing);
+1. gather the 2D cues of the cameras present (absent cameras are simply missing) and
+   make their left/right labels agree (``views.fix_left_right``);
 2. triangulate the six cues, by ``FusionConfig.views``:
    ``"all"`` (default) every camera that sees a cue, weighted least squares of the rays
    with reprojection outlier rejection; or ``"pair"`` the frontal adjacent pair chosen
@@ -39,7 +40,8 @@ from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BoneLengths, body_model
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.views import CUE_RADII_M, RigProjector, frontal_pair, predict_views, triangulate_cues
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, frontal_pair, predict_views,
+                                   triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
@@ -50,6 +52,12 @@ log = logging.getLogger(__name__)
 N_CUES = len(CUE_NAMES)
 C_TORSO = CUE_NAMES.index("torso")
 C_HEAD = CUE_NAMES.index("head")
+C_HAND_L, C_HAND_R = CUE_NAMES.index("hand_l"), CUE_NAMES.index("hand_r")
+# Head blob radius assumed when perception gives no area (pixels).
+MIN_BLOB_RADIUS_PX = 8.0
+# A hand whose 2D cue lies within this many head-blob radii of the head's is taken for
+# a second detection of the face in that view and dropped there.
+SAME_BLOB_RADII = 1.5
 C_FOOT_L, C_FOOT_R = CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")
 _EFFECTOR_CUES = np.array([CUE_NAMES.index(n) for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
@@ -63,8 +71,12 @@ class FusionConfig:
 
     fps: float = 30.0                      # frame rate, converts frame numbers to seconds
     views: str = "all"                     # "all" or "pair" (A.6 frontal pair)
-    max_reproj_px: float = 6.0             # outlier rejection threshold
+    max_reproj_px: float = 6.0             # outlier rejection threshold (head, hands, feet)
+    torso_max_reproj_px: float = 15.0      # the same for the torso (its 2D points are silhouette
+                                           # centres, not projections of one 3D point)
     min_confidence: float = 0.05           # 2D cues below this are ignored
+    fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
+    duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
     use_filtered: bool = False             # IK on filtered (True) or measured (False) cues
     ik: str = "analytic"                   # "analytic" or "ccd" (analytic + CCD refinement)
     bone_lengths: BoneLengths | None = None
@@ -150,6 +162,7 @@ class BodyTracker:
         self._last_pose: tuple[np.ndarray, np.ndarray] | None = None
         self._pair: tuple[int, int] | None = None
         self._vel: np.ndarray | None = None
+        self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
@@ -176,11 +189,20 @@ class BodyTracker:
             ok = cc.found & (cc.confidence >= self.config.min_confidence)
             uv[c, ok] = cc.xy[ok]
             w[c, ok] = cc.confidence[ok]
+            if ok[C_HEAD]:
+                # a hand found on the head's blob in this view is the same blob twice
+                r = max(MIN_BLOB_RADIUS_PX, float(np.sqrt(max(cc.area[C_HEAD], 0.0) / np.pi)))
+                for h in (C_HAND_L, C_HAND_R):
+                    if ok[h] and np.linalg.norm(cc.xy[h] - cc.xy[C_HEAD]) < SAME_BLOB_RADII * r:
+                        w[c, h] = 0.0
+                        uv[c, h] = np.nan
         return uv, w
 
     def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6)."""
-        X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, self.config.max_reproj_px)
+        thr = np.full(N_CUES, self.config.max_reproj_px)
+        thr[C_TORSO] = self.config.torso_max_reproj_px
+        X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, thr)
         if self.config.views == "pair" and self._pair is not None:
             a, b = self._pair
             wp = np.zeros_like(w)
@@ -269,9 +291,15 @@ class BodyTracker:
         timings: dict[str, float] = {}
         t_s = frame / self.config.fps
         uv, w = self._gather(cues)
+        if self.config.fix_left_right:
+            ref = self.filter.predict_at(t_s) if self.filter.alive.any() else None
+            uv, w, n_fixed = fix_left_right(self._tri, self._proj, uv, w, ref)
+            self.relabelled += n_fixed
         X, used = self.triangulate(uv, w)
         t1 = time.perf_counter()
         timings["triangulate"] = (t1 - t0) * 1e3
+        valid = np.isfinite(X).all(axis=1)
+        X = self._reject_duplicates(X, valid, t_s)
         valid = np.isfinite(X).all(axis=1)
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
         valid &= accepted
@@ -305,6 +333,24 @@ class BodyTracker:
         pair = tuple(self._names[i] for i in self._pair) if (self.config.views == "pair" and self._pair) else ()
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
                             root, angles, pan, pair, cues_ik, axes, joint_valid)
+
+    def _reject_duplicates(self, X: np.ndarray, valid: np.ndarray, t_s: float) -> np.ndarray:
+        """Drop a hand/foot measured on top of the head unless it was predicted there.
+
+        Perception re-acquiring a lost hand can take the face blob in every view; the
+        triangulated "hand" is then the head. A real hand at the face was predicted near it.
+        """
+        if not valid[C_HEAD]:
+            return X
+        pred = self.filter.predict_at(t_s)
+        dup = self.config.duplicate_m
+        X = X.copy()
+        for c in (1, 2, 3, 4):
+            if valid[c] and np.linalg.norm(X[c] - X[C_HEAD]) < dup:
+                p = pred[c]
+                if not (np.isfinite(p).all() and np.linalg.norm(p - X[C_HEAD]) < 2 * dup):
+                    X[c] = np.nan
+        return X
 
     def _update_pair(self, cues_ik: np.ndarray) -> None:
         if self.config.views != "pair":

@@ -8,6 +8,9 @@
 * ``triangulate_cues`` — all views that see a cue, weighted least squares of the rays,
   then reprojection-based outlier rejection (drop the worst view while its error is
   above ``max_reproj_px`` and at least three views remain).
+* ``fix_left_right`` — a single view cannot be sure which hand (foot) is the left one:
+  per view, keep the labelling that agrees with the 3D prediction, or at a cold start
+  the combination of per-view labellings that triangulates best.
 * ``predict_views`` — A.4: project the predicted 3D cues into every camera and test
   visibility with a Z-buffer on the distance from the camera centre: a cue is hidden
   when a nearer cue's disc covers its centre, or when it falls outside the image.
@@ -112,10 +115,11 @@ def frontal_pair(centers: np.ndarray, foot_l: np.ndarray, foot_r: np.ndarray, ta
 
 
 def triangulate_cues(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, weights: np.ndarray,
-                     max_reproj_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     max_reproj_px: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Weighted N-view triangulation with reprojection outlier rejection.
 
     uv : (C, N, 2) distorted pixels, NaN = not seen; weights : (C, N) >= 0 (0 = not used).
+    max_reproj_px : scalar or (N,) per-point threshold, pixels.
     Returns ``(X (N, 3) metres NaN where < 2 views, used (C, N) bool, residual_px (C, N))``.
     """
     w = np.where(np.isfinite(uv).all(-1), weights, 0.0)
@@ -164,3 +168,86 @@ def predict_views(proj: RigProjector, X: np.ndarray, radii_m: np.ndarray = CUE_R
     covered = (d2 < rad[:, None, :] ** 2) & nearer & front[:, None, :]
     vis = inside & ~covered.any(axis=2)
     return xy, vis, rad
+
+
+# Left/right pairs of cues (CUE_NAMES order) whose labels a single view cannot be sure of.
+LR_PAIRS = ((1, 2), (3, 4))
+# Reprojection error cap (pixels) in the label search, so one bad blob cannot dominate.
+LR_COST_CAP_PX = 40.0
+
+
+def fix_left_right(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, weights: np.ndarray,
+                   reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """Per camera, swap the left/right labels of hands and feet where the other is better.
+
+    Perception labels left and right per view (a cold start assumes the person faces the
+    camera); the views must agree. With a 3D ``reference`` (6, 3) (the filter's
+    prediction) each view takes the labelling nearer the reference's projection. For a
+    pair without reference every combination of per-view swaps is tried and the one with
+    the least (capped) reprojection error is kept; of the two mirror-image solutions the
+    one keeping more views' original labels wins.
+
+    uv : (C, 6, 2) pixels (NaN = not found), weights : (C, 6). Returns corrected copies
+    and the number of views relabelled.
+    """
+    uv = uv.copy()
+    w = weights.copy()
+    C = uv.shape[0]
+    n_fixed = 0
+    have_ref = reference is not None
+    ref_uv = proj.project(np.where(np.isfinite(reference), reference, 0.0))[0] if have_ref else None
+    for a, b in LR_PAIRS:
+        seen = np.isfinite(uv[:, [a, b]]).all(-1) & (w[:, [a, b]] > 0)        # (C, 2)
+        cams = np.flatnonzero(seen.any(axis=1))
+        if cams.size == 0:
+            continue
+        if have_ref and np.isfinite(reference[[a, b]]).all():
+            for c in cams:
+                ra, rb = ref_uv[c, a], ref_uv[c, b]
+                pa, pb = uv[c, a], uv[c, b]
+                if seen[c].all():
+                    keep = np.linalg.norm(pa - ra) + np.linalg.norm(pb - rb)
+                    swap = np.linalg.norm(pa - rb) + np.linalg.norm(pb - ra)
+                else:
+                    p = pa if seen[c, 0] else pb
+                    near_a = np.linalg.norm(p - ra) <= np.linalg.norm(p - rb)
+                    keep, swap = (0.0, 1.0) if near_a == seen[c, 0] else (1.0, 0.0)
+                if swap < keep:
+                    _swap(uv, w, c, a, b)
+                    n_fixed += 1
+            continue
+        if cams.size < 2 or cams.size > 8:
+            continue
+        best = None
+        for mask in range(1 << (cams.size - 1)):      # the first view's labels fixed: no mirror
+            flips = [bool(mask >> k & 1) for k in range(cams.size - 1)]
+            trial_uv = uv[:, [a, b]].copy()
+            trial_w = w[:, [a, b]].copy()
+            for c, f in zip(cams[1:], flips):
+                if f:
+                    trial_uv[c] = trial_uv[c, ::-1]
+                    trial_w[c] = trial_w[c, ::-1]
+            X = tri(trial_uv, np.where(np.isfinite(trial_uv).all(-1), trial_w, 0.0))
+            if not np.isfinite(X).all():
+                continue
+            p = proj.project(X)[0]
+            err = np.linalg.norm(p - trial_uv, axis=-1)[cams]
+            cost = float(np.nansum(np.minimum(err, LR_COST_CAP_PX)))
+            n_flip = sum(flips)
+            n_keep = max(n_flip, cams.size - n_flip)   # the mirror solution keeps the others
+            key = (round(cost, 6), -n_keep)
+            if best is None or key < best[0]:
+                best = (key, flips, n_flip > cams.size - n_flip)
+        if best is None:
+            continue
+        _, flips, mirror = best
+        for c, f in zip(cams, [mirror] + [f != mirror for f in flips]):
+            if f:
+                _swap(uv, w, c, a, b)
+                n_fixed += 1
+    return uv, w, n_fixed
+
+
+def _swap(uv: np.ndarray, w: np.ndarray, c: int, a: int, b: int) -> None:
+    uv[c, [a, b]] = uv[c, [b, a]]
+    w[c, [a, b]] = w[c, [b, a]]

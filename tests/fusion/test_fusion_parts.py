@@ -87,3 +87,36 @@ def test_zbuffer_hides_a_cue_behind_a_nearer_one():
     X[2] = np.nan
     xy, vis, _ = predict_views(RigProjector(rig.cameras), X)
     assert np.isnan(xy[:, 2]).all() and not vis[:, 2].any()
+
+
+def _two_hands_uv(rig):
+    X = np.array([[0, 0, 1.6], [-0.35, 0.1, 1.0], [0.35, -0.1, 1.1], [-0.1, 0, 0.05], [0.12, 0.05, 0.05],
+                  [0, 0, 1.1]])
+    uv, _, _ = RigProjector(rig.cameras).project(X)
+    return X, uv
+
+
+@pytest.mark.parametrize("with_reference", [True, False])
+def test_fix_left_right_makes_the_views_agree(with_reference):
+    from mocap_rt.fusion.views import fix_left_right
+
+    rig = ring_rig()
+    X, uv = _two_hands_uv(rig)
+    bad = uv.copy()
+    for c in (1, 4):                       # two views labelled the hands the other way round
+        bad[c, [1, 2]] = bad[c, [2, 1]]
+    bad[3, [3, 4]] = bad[3, [4, 3]]        # and one view the feet
+    tri, proj = RayTriangulator(rig.cameras), RigProjector(rig.cameras)
+    ref = X + 0.03 if with_reference else None
+    fixed, w, n = fix_left_right(tri, proj, bad, np.ones((6, 6)), ref)
+    np.testing.assert_allclose(fixed, uv)
+    assert n == 3
+
+
+def test_kalman_recovers_after_one_bad_measurement():
+    f = CueFilter(1, FilterConfig(gate_m=0.3))
+    for k in range(10):
+        f.update(k / 30, np.array([[0.0, 0, 1]]))
+    f.update(10 / 30, np.array([[0.0, 0, 0.85]]))          # a bad one inside the gate: wild velocity
+    accepted = [f.update(k / 30, np.array([[0.0, 0, 1]]))[0] for k in range(11, 16)]
+    assert all(accepted) and np.allclose(f.pos[0], [0, 0, 1], atol=0.02)
