@@ -198,3 +198,99 @@ def _polygon_centroid(contour, n_pts, mx, my):  # pragma: no cover - numba
     if abs(a2) < 1e-9:
         return mx, my, 0.0
     return mx + cx / (3.0 * a2), my + cy / (3.0 * a2), 0.5 * abs(a2)
+
+
+@numba.njit(cache=True, nogil=True)
+def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, min_area, scale, n_pts, search_frac,
+                     search_min_px, win_half_px, mirror_iters, max_shift_frac, sums, xy, cov, area,
+                     contours, has_contour):  # pragma: no cover - numba
+    """One tracker frame in one call: labelling (``label_moments``) + Gaussian blobs +
+    deformable ellipse of each visible blob. Python per-blob overhead was most of the
+    blob stage's time.
+
+    centers (K, 2) ROI px (NaN = none), gate (K,) px, visible (K,) bool. Outputs (K rows):
+    sums (K, 6) moments, xy (K, 2) cue (NaN if < min_area pixels), cov (K, 2, 2), area (K,),
+    contours (K, n_pts, 2), has_contour (K,) bool (False: occluded or refinement rejected).
+    """
+    K = centers.shape[0]
+    lox = 1e18
+    loy = 1e18
+    hix = -1e18
+    hiy = -1e18
+    for k in range(K):
+        if math.isfinite(centers[k, 0]) and math.isfinite(centers[k, 1]):
+            lox = min(lox, centers[k, 0] - gate[k])
+            loy = min(loy, centers[k, 1] - gate[k])
+            hix = max(hix, centers[k, 0] + gate[k])
+            hiy = max(hiy, centers[k, 1] + gate[k])
+    gate2 = gate * gate
+    if hix < lox:
+        for k in range(K):
+            for j in range(N_MOMENTS):
+                sums[k, j] = 0.0
+    else:
+        sx0 = max(x0, int(math.floor(lox)))
+        sy0 = max(y0, int(math.floor(loy)))
+        sx1 = max(sx0, min(x1, int(math.ceil(hix)) + 1))
+        sy1 = max(sy0, min(y1, int(math.ceil(hiy)) + 1))
+        label_moments(skin, sx0, sy0, sx1, sy1, centers, gate2, sums)
+    mean = np.empty(2)
+    c2 = np.empty((2, 2))
+    for k in range(K):
+        has_contour[k] = False
+        n = sums[k, 0]
+        if n < min_area:
+            xy[k, 0] = np.nan
+            xy[k, 1] = np.nan
+            area[k] = 0.0
+            for i in range(2):
+                for j in range(2):
+                    cov[k, i, j] = np.nan
+            continue
+        mx = sums[k, 1] / n
+        my = sums[k, 2] / n
+        cxx = sums[k, 3] / n - mx * mx + 1.0 / 12.0      # + pixel extent
+        cxy = sums[k, 4] / n - mx * my
+        cyy = sums[k, 5] / n - my * my + 1.0 / 12.0
+        mean[0] = mx
+        mean[1] = my
+        c2[0, 0] = cxx
+        c2[0, 1] = cxy
+        c2[1, 0] = cxy
+        c2[1, 1] = cyy
+        cov[k] = c2
+        xy[k, 0] = mx
+        xy[k, 1] = my
+        area[k] = n
+        if visible[k]:
+            cx, cy, a = deform_ellipse(skin, sil, mean, c2, scale, n_pts, search_frac, search_min_px, win_half_px,
+                                       mirror_iters, contours[k])
+            r_blob = math.sqrt(n / math.pi)
+            if a > 0 and math.hypot(cx - mx, cy - my) <= max_shift_frac * r_blob + 0.5:
+                xy[k, 0] = cx
+                xy[k, 1] = cy
+                area[k] = a
+                has_contour[k] = True
+
+
+@numba.njit(cache=True, nogil=True)
+def update_tracks(found, new_xy, new_cov, xy, vel, radius, coast, last_seen, max_coast):  # pragma: no cover
+    """2D track state after a frame: velocity (px/frame), position, semi-major axis (2 sigma, px)."""
+    for k in range(found.shape[0]):
+        if not found[k]:
+            coast[k] += 1
+            continue
+        if coast[k] <= max_coast and math.isfinite(xy[k, 0]) and math.isfinite(xy[k, 1]):
+            vel[k, 0] = (new_xy[k, 0] - xy[k, 0]) / (1 + coast[k])
+            vel[k, 1] = (new_xy[k, 1] - xy[k, 1]) / (1 + coast[k])
+        else:
+            vel[k, 0] = 0.0
+            vel[k, 1] = 0.0
+        xy[k, 0] = new_xy[k, 0]
+        xy[k, 1] = new_xy[k, 1]
+        last_seen[k, 0] = new_xy[k, 0]
+        last_seen[k, 1] = new_xy[k, 1]
+        tr = 0.5 * (new_cov[k, 0, 0] + new_cov[k, 1, 1])
+        l1 = tr + math.sqrt(0.25 * (new_cov[k, 0, 0] - new_cov[k, 1, 1]) ** 2 + new_cov[k, 0, 1] ** 2)
+        radius[k] = 2.0 * math.sqrt(max(l1, 0.25))
+        coast[k] = 0

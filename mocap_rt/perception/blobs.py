@@ -27,14 +27,13 @@ Coordinates: pixels of the full image unless a name says ``roi``.
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from mocap_rt.perception.background import component_stats
-from mocap_rt.perception.blob_kernels import N_MOMENTS, deform_ellipse, label_moments
+from mocap_rt.perception.blob_kernels import N_MOMENTS, label_and_refine, update_tracks
 
 log = logging.getLogger(__name__)
 
@@ -74,16 +73,6 @@ class BlobFrame:
 _NO_SIL = np.zeros((1, 1), np.uint8)
 
 
-def _moments_to_gaussian(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Moment row (6,) -> mean (2,), covariance (2, 2) of the pixels (+1/12 px^2 pixel extent)."""
-    n = s[0]
-    m = np.array([s[1] / n, s[2] / n])
-    cxx = s[3] / n - m[0] * m[0] + 1.0 / 12.0
-    cxy = s[4] / n - m[0] * m[1]
-    cyy = s[5] / n - m[1] * m[1] + 1.0 / 12.0
-    return m, np.array([[cxx, cxy], [cxy, cyy]])
-
-
 class BlobTracker:
     """Tracks the K blobs ``roles`` of one colour in one camera."""
 
@@ -97,7 +86,11 @@ class BlobTracker:
         self._coast = np.zeros(K, np.int64)      # frames since last measurement
         self._last_seen = np.full((K, 2), np.nan)  # last measured position, kept while lost
         self._sums = np.zeros((K, N_MOMENTS))
-        self._contour = np.zeros((params.n_contour_pts, 2))
+        self._out_xy = np.zeros((K, 2))
+        self._out_cov = np.zeros((K, 2, 2))
+        self._out_area = np.zeros(K)
+        self._out_contours = np.zeros((K, params.n_contour_pts, 2))
+        self._has_contour = np.zeros(K, np.bool_)
 
     def reset(self) -> None:
         self.__init__(self.roles, self.params)
@@ -106,7 +99,7 @@ class BlobTracker:
         """Constant-velocity 2D prediction: (xy (K, 2) NaN where untracked, semi-major axis (K,) px)."""
         xy = self._xy + self._vel * (1 + self._coast)[:, None]
         xy[self._coast > self.params.max_coast_frames] = np.nan
-        return xy, self._radius.copy()
+        return xy, self._radius
 
     # ------------------------------------------------------------------ per frame
     def step(self, skin_roi: np.ndarray, roi_xy: tuple[int, int], person_box_roi: tuple[int, int, int, int],
@@ -144,13 +137,13 @@ class BlobTracker:
 
         bx, by, bw, bh = person_box_roi
         sil = sil_roi if sil_roi is not None else _NO_SIL
-        out = BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K),
-                        [None] * K)
         if bw <= 0 or bh <= 0:
-            self._mark_lost(np.ones(K, bool))
-            return out
+            self._coast += 1
+            return BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K),
+                             [None] * K)
         box = (bx, by, bx + bw, by + bh)
-        found = self._label(skin_roi, box, centers, gate)
+        mirror = p.mirror_iters if sil_roi is not None else 0
+        found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
         acquired = np.zeros(K, bool)
         missing = ~found
         if missing.any():
@@ -158,48 +151,27 @@ class BlobTracker:
             if acquired.any():
                 centers = np.where(acquired[:, None], self._acq_centers, centers)
                 gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
-                found = self._label(skin_roi, box, centers, gate)
-
-        for k in range(K):
-            if not found[k]:
-                continue
-            mean, cov = _moments_to_gaussian(self._sums[k])
-            n = self._sums[k, 0]
-            xy, area = mean, n
-            contour = None
-            r_blob = math.sqrt(n / math.pi)
-            if visible[k]:
-                cx, cy, a = deform_ellipse(skin_roi, sil, mean, cov, p.ellipse_scale, p.n_contour_pts,
-                                           p.search_frac, p.search_min_px, p.window_half_px,
-                                           p.mirror_iters if sil_roi is not None else 0, self._contour)
-                if a > 0 and math.hypot(cx - mean[0], cy - mean[1]) <= p.max_refine_shift_frac * r_blob + 0.5:
-                    xy, area = np.array([cx, cy]), a
-                    contour = self._contour + (ox, oy)
-            out.xy[k] = xy + (ox, oy)
-            out.cov[k] = cov
-            out.area[k] = area
-            conf = min(1.0, n / (4.0 * p.min_area_px))
-            out.confidence[k] = conf * (1.0 if visible[k] else 0.5) * (0.5 if acquired[k] else 1.0)
-            out.contours[k] = contour
+                found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
+        n = self._sums[:, 0]
+        conf = np.minimum(1.0, n / (4.0 * p.min_area_px)) * np.where(visible, 1.0, 0.5) * \
+            np.where(acquired, 0.5, 1.0) * found
+        out = BlobFrame(self._out_xy + (ox, oy), self._out_cov.copy(), self._out_area.copy(), conf,
+                        [self._out_contours[k] + (ox, oy) if self._has_contour[k] and found[k] else None
+                         for k in range(K)])
         self._update_state(out, found)
         return out
 
-    # ------------------------------------------------------------------ internals
-    def _label(self, skin_roi, box, centers, gate) -> np.ndarray:
-        x0, y0, x1, y1 = box
-        ok = np.isfinite(centers).all(axis=1)
-        if not ok.any():
-            self._sums[:] = 0.0
-            return np.zeros(len(self.roles), bool)
-        # scan only the gates' bounding box
-        lo = np.floor((centers[ok] - gate[ok, None]).min(axis=0))
-        hi = np.ceil((centers[ok] + gate[ok, None]).max(axis=0)) + 1
-        x0, y0 = max(x0, int(lo[0])), max(y0, int(lo[1]))
-        x1, y1 = max(x0, min(x1, int(hi[0]))), max(y0, min(y1, int(hi[1])))
-        label_moments(skin_roi, x0, y0, x1, y1, np.ascontiguousarray(centers, np.float64),
-                      np.ascontiguousarray(gate * gate, np.float64), self._sums)
-        return self._sums[:, 0] >= self.params.min_area_px
+    def _run(self, skin_roi, sil, box, centers, gate, visible, mirror) -> np.ndarray:
+        p = self.params
+        label_and_refine(skin_roi, sil, box[0], box[1], box[2], box[3], np.ascontiguousarray(centers, np.float64),
+                         np.ascontiguousarray(gate, np.float64), np.ascontiguousarray(visible, np.bool_),
+                         float(p.min_area_px), float(p.ellipse_scale), int(p.n_contour_pts), float(p.search_frac),
+                         float(p.search_min_px), int(p.window_half_px), int(mirror), float(p.max_refine_shift_frac),
+                         self._sums, self._out_xy, self._out_cov, self._out_area, self._out_contours,
+                         self._has_contour)
+        return self._sums[:, 0] >= p.min_area_px
 
+    # ------------------------------------------------------------------ internals
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
         """Assign unclaimed colour regions to missing blobs; sets ``_acq_centers``/``_acq_gate``."""
         p = self.params
@@ -279,21 +251,6 @@ class BlobTracker:
                 take(need[0], 0)
         return acquired
 
-    def _mark_lost(self, lost: np.ndarray) -> None:
-        self._coast[lost] += 1
-
     def _update_state(self, out: BlobFrame, found: np.ndarray) -> None:
-        for k in range(len(self.roles)):
-            if found[k]:
-                new = out.xy[k]
-                if self._coast[k] <= self.params.max_coast_frames and np.isfinite(self._xy[k]).all():
-                    self._vel[k] = (new - self._xy[k]) / (1 + self._coast[k])
-                else:
-                    self._vel[k] = 0.0
-                self._xy[k] = new
-                self._last_seen[k] = new
-                # semi-major axis of the blob (2 sigma): elongated hands and shoes need it
-                self._radius[k] = 2.0 * math.sqrt(max(np.linalg.eigvalsh(out.cov[k])[-1], 0.25))
-                self._coast[k] = 0
-            else:
-                self._coast[k] += 1
+        update_tracks(found, out.xy, out.cov, self._xy, self._vel, self._radius, self._coast, self._last_seen,
+                      int(self.params.max_coast_frames))
