@@ -56,10 +56,15 @@ class CueFilter:
         self.time_s: float | None = None
 
     def _propagate(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        c = self.cov
         q = self.config.accel_psd_m2ps3
-        F = np.array([[1.0, dt], [0.0, 1.0]])
-        Q = q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
-        return self.pos + self.vel * dt, self.vel.copy(), F @ self.cov @ F.T + Q
+        # F P F^T + Q with F = [[1, dt], [0, 1]], written out (2x2 per point)
+        new = np.empty_like(c)
+        new[:, 0, 0] = c[:, 0, 0] + dt * (c[:, 0, 1] + c[:, 1, 0]) + dt * dt * c[:, 1, 1] + q * dt ** 3 / 3
+        new[:, 0, 1] = c[:, 0, 1] + dt * c[:, 1, 1] + q * dt ** 2 / 2
+        new[:, 1, 0] = c[:, 1, 0] + dt * c[:, 1, 1] + q * dt ** 2 / 2
+        new[:, 1, 1] = c[:, 1, 1] + q * dt
+        return self.pos + self.vel * dt, self.vel.copy(), new
 
     def predict_at(self, time_s: float) -> np.ndarray:
         """(N, 3) predicted positions at ``time_s`` (NaN for dead tracks); state unchanged."""

@@ -150,6 +150,7 @@ class BodyTracker:
         self.config = config
         self.cameras = tuple(rig.cameras)
         self._names = list(rig.names)
+        self._index = {n: i for i, n in enumerate(self._names)}
         self._tri = RayTriangulator(self.cameras)
         self._proj = RigProjector(self.cameras)
         self._centers = np.array([c.center for c in self.cameras])
@@ -182,20 +183,23 @@ class BodyTracker:
         C = len(self.cameras)
         uv = np.full((C, N_CUES, 2), np.nan)
         w = np.zeros((C, N_CUES))
+        head_r = np.zeros(C)
         for name, cc in cues.items():
-            if name not in self._names:
+            c = self._index.get(name)
+            if c is None:
                 continue
-            c = self._names.index(name)
-            ok = cc.found & (cc.confidence >= self.config.min_confidence)
-            uv[c, ok] = cc.xy[ok]
-            w[c, ok] = cc.confidence[ok]
-            if ok[C_HEAD]:
-                # a hand found on the head's blob in this view is the same blob twice
-                r = max(MIN_BLOB_RADIUS_PX, float(np.sqrt(max(cc.area[C_HEAD], 0.0) / np.pi)))
-                for h in (C_HAND_L, C_HAND_R):
-                    if ok[h] and np.linalg.norm(cc.xy[h] - cc.xy[C_HEAD]) < SAME_BLOB_RADII * r:
-                        w[c, h] = 0.0
-                        uv[c, h] = np.nan
+            uv[c] = cc.xy
+            w[c] = cc.confidence
+            head_r[c] = cc.area[C_HEAD]
+        ok = np.isfinite(uv).all(-1) & (w >= self.config.min_confidence) & (w > 0)
+        # a hand found on the head's blob in a view is the same blob twice: drop it there
+        r = np.maximum(MIN_BLOB_RADIUS_PX, np.sqrt(np.maximum(head_r, 0.0) / np.pi))
+        for h in (C_HAND_L, C_HAND_R):
+            same = ok[:, C_HEAD] & ok[:, h] & (
+                np.linalg.norm(uv[:, h] - uv[:, C_HEAD], axis=1) < SAME_BLOB_RADII * r)
+            ok[same, h] = False
+        uv[~ok] = np.nan
+        w[~ok] = 0.0
         return uv, w
 
     def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -46,25 +46,30 @@ class RigProjector:
         self.dist = np.zeros((len(cameras), 8))
         for i, c in enumerate(cameras):
             self.dist[i, : c.dist.size] = c.dist
+        self._distorted = bool(np.any(self.dist))
+        self._Rt = np.ascontiguousarray(np.transpose(self.R, (0, 2, 1)))  # row vectors: X @ R^T
+        K = self.K
+        self._fx, self._fy = K[:, 0, 0, None], K[:, 1, 1, None]
+        self._skew, self._cx, self._cy = K[:, 0, 1, None], K[:, 0, 2, None], K[:, 1, 2, None]
 
     def project(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        pc = np.einsum("cij,nj->cni", self.R, X) + self.t[:, None, :]   # (C, N, 3)
+        pc = X[None, :, :] @ self._Rt + self.t[:, None, :]               # (C, N, 3)
         z = pc[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             x, y = pc[..., 0] / z, pc[..., 1] / z
-        k1, k2, p1, p2, k3, k4, k5, k6 = (self.dist[:, i:i + 1] for i in range(8))
-        r2 = x * x + y * y
-        r4, r6 = r2 * r2, r2 * r2 * r2
-        radial = (1 + k1 * r2 + k2 * r4 + k3 * r6) / (1 + k4 * r2 + k5 * r4 + k6 * r6)
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        K = self.K
-        u = K[:, 0, 0, None] * xd + K[:, 0, 1, None] * yd + K[:, 0, 2, None]
-        v = K[:, 1, 1, None] * yd + K[:, 1, 2, None]
-        uv = np.stack([u, v], axis=-1)
+        if self._distorted:
+            k1, k2, p1, p2, k3, k4, k5, k6 = (self.dist[:, i:i + 1] for i in range(8))
+            r2 = x * x + y * y
+            r4, r6 = r2 * r2, r2 * r2 * r2
+            radial = (1 + k1 * r2 + k2 * r4 + k3 * r6) / (1 + k4 * r2 + k5 * r4 + k6 * r6)
+            x, y = (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+                    y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)
+        uv = np.empty(pc.shape[:2] + (2,))
+        uv[..., 0] = self._fx * x + self._skew * y + self._cx
+        uv[..., 1] = self._fy * y + self._cy
         uv[~(z > 1e-9)] = np.nan
-        dist = np.linalg.norm(X[None, :, :] - self.centers[:, None, :], axis=-1)
-        return uv, z, dist
+        d = X[None, :, :] - self.centers[:, None, :]
+        return uv, z, np.sqrt(np.einsum("cni,cni->cn", d, d))
 
     def in_image(self, uv: np.ndarray) -> np.ndarray:
         """(C, N) bool: inside the image (pixel centres at integers, half-pixel border)."""
@@ -202,19 +207,19 @@ def fix_left_right(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, wei
         if cams.size == 0:
             continue
         if have_ref and np.isfinite(reference[[a, b]]).all():
-            for c in cams:
-                ra, rb = ref_uv[c, a], ref_uv[c, b]
-                pa, pb = uv[c, a], uv[c, b]
-                if seen[c].all():
-                    keep = np.linalg.norm(pa - ra) + np.linalg.norm(pb - rb)
-                    swap = np.linalg.norm(pa - rb) + np.linalg.norm(pb - ra)
-                else:
-                    p = pa if seen[c, 0] else pb
-                    near_a = np.linalg.norm(p - ra) <= np.linalg.norm(p - rb)
-                    keep, swap = (0.0, 1.0) if near_a == seen[c, 0] else (1.0, 0.0)
-                if swap < keep:
-                    _swap(uv, w, c, a, b)
-                    n_fixed += 1
+            ra, rb = ref_uv[:, a], ref_uv[:, b]                                  # (C, 2)
+            pa, pb = uv[:, a], uv[:, b]
+            d = lambda p, q: np.sqrt(np.sum((p - q) ** 2, axis=-1))            # noqa: E731
+            both = seen.all(axis=1)
+            keep = np.where(both, d(pa, ra) + d(pb, rb), 0.0)
+            swap = np.where(both, d(pa, rb) + d(pb, ra), 0.0)
+            # one cue seen: it belongs to whichever prediction it is nearer
+            only_a, only_b = seen[:, 0] & ~seen[:, 1], seen[:, 1] & ~seen[:, 0]
+            swap = np.where(only_a, np.where(d(pa, rb) < d(pa, ra), -1.0, 1.0), swap)
+            swap = np.where(only_b, np.where(d(pb, ra) < d(pb, rb), -1.0, 1.0), swap)
+            for c in np.flatnonzero(swap < keep):
+                _swap(uv, w, c, a, b)
+                n_fixed += 1
             continue
         if cams.size < 2 or cams.size > 8:
             continue
