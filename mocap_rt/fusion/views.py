@@ -179,6 +179,10 @@ def predict_views(proj: RigProjector, X: np.ndarray, radii_m: np.ndarray = CUE_R
 LR_PAIRS = ((1, 2), (3, 4))
 # Reprojection error cap (pixels) in the label search, so one bad blob cannot dominate.
 LR_COST_CAP_PX = 40.0
+# With a prediction, a view is relabelled only if the swapped labels are nearer by this
+# margin (pixels) and this ratio.
+LR_MARGIN_PX = 10.0
+LR_RATIO = 0.5
 
 
 def fix_left_right(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, weights: np.ndarray,
@@ -187,8 +191,8 @@ def fix_left_right(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, wei
 
     Perception labels left and right per view (a cold start assumes the person faces the
     camera); the views must agree. With a 3D ``reference`` (6, 3) (the filter's
-    prediction) each view takes the labelling nearer the reference's projection. For a
-    pair without reference every combination of per-view swaps is tried and the one with
+    prediction) each view takes the labelling nearer the reference's projection (only when
+    clearly nearer). For a pair with neither cue predicted, every combination of per-view swaps is tried and the one with
     the least (capped) reprojection error is kept; of the two mirror-image solutions the
     one keeping more views' original labels wins.
 
@@ -213,14 +217,17 @@ def fix_left_right(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, wei
             both = seen.all(axis=1)
             keep = np.where(both, d(pa, ra) + d(pb, rb), 0.0)
             swap = np.where(both, d(pa, rb) + d(pb, ra), 0.0)
-            # one cue seen: it belongs to whichever prediction it is nearer
+            # one cue seen: the other label only if that prediction is clearly nearer
             only_a, only_b = seen[:, 0] & ~seen[:, 1], seen[:, 1] & ~seen[:, 0]
-            swap = np.where(only_a, np.where(d(pa, rb) < d(pa, ra), -1.0, 1.0), swap)
-            swap = np.where(only_b, np.where(d(pb, ra) < d(pb, rb), -1.0, 1.0), swap)
-            for c in np.flatnonzero(swap < keep):
+            keep = np.where(only_a, d(pa, ra), np.where(only_b, d(pb, rb), keep))
+            swap = np.where(only_a, d(pa, rb), np.where(only_b, d(pb, ra), swap))
+            # relabel only when clearly better: predictions are uncertain, labels usually right
+            for c in np.flatnonzero((swap + LR_MARGIN_PX < keep) & (swap < LR_RATIO * keep)):
                 _swap(uv, w, c, a, b)
                 n_fixed += 1
             continue
+        if have_ref and np.isfinite(reference[[a, b]]).all(axis=1).any():
+            continue  # one of the two is tracked: too little to go on, keep perception's labels
         if cams.size < 2 or cams.size > 8:
             continue
         best = None
