@@ -50,12 +50,12 @@ class BlobParams:
     gate_speed_factor: float = 1.0      # ... plus this times the 2D speed (px/frame)
     max_coast_frames: int = 3           # coast a lost blob this long before re-acquiring
     ellipse_scale: float = 2.0          # initial ellipse at 2 sigma (edge of a uniform ellipse)
-    n_contour_pts: int = 20             # perimeter points of the deformable ellipse
+    n_contour_pts: int = 32             # perimeter points of the deformable ellipse
     search_frac: float = 0.4            # boundary search range, fraction of the local radius
     search_min_px: float = 3.0          # ... at least this
     window_half_px: int = 2             # J(p) window half length along the normal
     max_refine_shift_frac: float = 0.6  # deformed centroid may move this * radius from mu'
-    mirror_iters: int = 2               # occlusion completion rounds (blob_kernels.deform_ellipse)
+    mirror_iters: int = 20              # occlusion completion rounds (converges; blob_kernels.deform_ellipse)
     facing_camera: bool = True          # cold-start convention: image-left = person's right
 
 

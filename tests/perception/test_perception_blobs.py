@@ -131,3 +131,28 @@ def test_occluded_blob_keeps_initial_ellipse_and_lost_blob_is_reacquired():
     out = tr.step(_hands_frame(hl, (40, 120)), (0, 0), (0, 0, 200, 160), (100.0, 10.0))
     np.testing.assert_allclose(out.xy[2], (40, 120), atol=0.5)
     np.testing.assert_allclose(out.xy[1], hl, atol=0.5)
+
+
+def test_occlusion_completion_moves_a_partly_hidden_blob_towards_its_true_centre():
+    """A 'hand' (ellipse) whose wrist end is hidden under a 'sleeve' (silhouette, not skin)."""
+    shape = (120, 120)
+    centre, axes = (60.0, 60.0), (24.0, 10.0)
+    full = _ellipse_map(shape, centre, axes, 0.0)
+    sleeve = np.zeros(shape, np.uint8)
+    cv2.rectangle(sleeve, (20, 45), (45, 75), 1, -1)            # hides x <= 45 (left 9 px of the blob)
+    skin = full * (1 - sleeve)
+    sil = ((full > 0) | (sleeve > 0)).astype(np.uint8)
+    ys, xs = np.nonzero(skin)
+    mean = np.array([xs.mean(), ys.mean()])
+    cov = np.cov(np.stack([xs, ys]).astype(float))
+    contour = np.zeros((32, 2))
+    plain = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour)
+    completed = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.5, 3.0, 2, 20, contour)
+    err_plain = np.hypot(plain[0] - centre[0], plain[1] - centre[1])
+    err_completed = np.hypot(completed[0] - centre[0], completed[1] - centre[1])
+    assert err_plain > 2.0                      # the visible part's centre is shifted right
+    assert err_completed < 0.5 * err_plain
+    assert abs(completed[1] - centre[1]) < 0.3  # and not moved across the axis
+    # without a silhouette around it (no contact) completion changes nothing
+    again = deform_ellipse(skin, (skin > 0).astype(np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 20, contour)
+    assert again[0] == pytest.approx(plain[0], abs=1e-9)
