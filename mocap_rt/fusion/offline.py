@@ -3,7 +3,8 @@
 Per frame: perception of every camera (``CameraPerceiver``, fed with the tracker's
 prediction), then ``BodyTracker.step``. At the end, frames solved before the bone
 lengths were estimated are re-solved with the final lengths, so the whole clip uses one
-skeleton. Writes ``OUT_DIR/poses.bvh`` and ``OUT_DIR/poses.npz``:
+skeleton. Writes ``OUT_DIR/poses.bvh``, ``OUT_DIR/bones.toml`` (the bone lengths used,
+given or estimated; reusable with ``--bones``) and ``OUT_DIR/poses.npz``:
 
 * ``joints`` (F, J, 3) float64 metres, world; NaN before the first full pose;
 * ``joint_names`` (J,) str (the truth's names), ``frames`` (F,) int;
@@ -87,6 +88,7 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
     truth_2d : skip perception and feed the truth's 2D cues (+ ``noise_px`` Gaussian
         noise), to measure fusion apart from perception (studio recordings only).
     """
+    from mocap_rt.body.skeleton import write_bone_lengths
     from mocap_rt.io.bvh import write_bvh
     from mocap_rt.io.recording import Recording
 
@@ -141,6 +143,7 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
     if t_perc:
         out.timings_ms["perception_6cam_median"] = float(np.median(t_perc))
     lengths = tracker.lengths
+    write_bone_lengths(lengths, out_dir / "bones.toml")
     write_bvh(out_dir / "poses.bvh", tracker.bvh_skeleton, out.bvh_rows, 1.0 / config.fps)
     np.savez_compressed(out_dir / "poses.npz", joints=out.joints, joint_names=np.array(JOINT_NAMES),
                         frames=out.frames, cues=out.cues, cue_names=np.array(CUE_NAMES),

@@ -21,6 +21,8 @@ def recording(data_dir, tmp_path_factory):
 @pytest.mark.slow
 def test_process_truth_2d_writes_bvh_and_npz_and_is_accurate(recording, tmp_path):
     out = process_recording(recording, tmp_path, truth_2d=True, noise_px=0.5, progress=False)
+    from mocap_rt.body.skeleton import read_bone_lengths
+    assert read_bone_lengths(tmp_path / "bones.toml").thigh_m > 0.2
     with np.load(tmp_path / "poses.npz") as z:
         assert list(z["joint_names"]) == list(JOINT_NAMES)
         n = len(z["frames"])
