@@ -54,6 +54,7 @@ def solvers():
         ("CCD without chain weights", "ccd", replace(ccd, redundant_chain_weight=1.0)),
         ("CCD plain (no improvements)", "ccd", replace(thesis, use_limits=False, angle_tolerance_deg=0.0,
                                                        adaptive_weights=False)),
+        ("CCD improved + DLS polish (hybrid)", "hybrid", (ccd, JacobianConfig(max_iterations=10))),
         ("Jacobian transpose", "jac", JacobianConfig(method="transpose")),
         ("Damped pseudo-inverse + null space", "jac", JacobianConfig(method="dls")),
     ]
@@ -63,9 +64,19 @@ def run(trials, model, name, kind, cfg, effectors):
     perr, oerr, its, ms = [], [], [], []
     for truth, start in trials:
         P, R = forward_kinematics(model, np.zeros(3), truth)
-        fn = solve_ccd if kind == "ccd" else solve_jacobian
         t0 = time.perf_counter()
-        res = fn(model, np.zeros(3), start, effectors, P[effectors], R[effectors], reference=start, config=cfg)
+        if kind == "hybrid":
+            r1 = solve_ccd(model, np.zeros(3), start, effectors, P[effectors], R[effectors], reference=start,
+                           config=cfg[0])
+            res = r1
+            if not r1.converged:  # a few damped pseudo-inverse steps; kept only if they help
+                r2 = solve_jacobian(model, np.zeros(3), r1.angles, effectors, P[effectors], R[effectors],
+                                    reference=start, config=cfg[1])
+                if r2.position_error_m.max() < r1.position_error_m.max():
+                    res = r2
+        else:
+            fn = solve_ccd if kind == "ccd" else solve_jacobian
+            res = fn(model, np.zeros(3), start, effectors, P[effectors], R[effectors], reference=start, config=cfg)
         ms.append((time.perf_counter() - t0) * 1e3)
         perr.append(res.position_error_m * 1e3)
         oerr.append(res.orientation_error_deg)
