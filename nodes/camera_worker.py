@@ -183,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
             # perceiver, so the first triggered frame is as fast as any other
             warm = make_perceiver(camera, backgrounds, args.perception_config)
             warm.process(source.grab(0).image if not source.live else backgrounds[0], 0, None)
+            source.prefetch(0)          # the first trigger's image is ready (no seek back)
             if args.publish_frames and source.live:
                 session.put(keys.background(camera.name),
                             Background(keys.rig, camera.name, backgrounds).to_msgpack())

@@ -62,6 +62,7 @@ class FrameGatherer:
         self.last_done = -1
         self.late_cues = 0
         self.frames_dropped = 0
+        self._triggered = False
 
     def _deadline(self, t_trigger_ns: int) -> int:
         if self.period_ns > 0:
@@ -81,8 +82,12 @@ class FrameGatherer:
                 self.frames_dropped += 1
         return pf
 
-    def on_trigger(self, trig: Trigger) -> None:
+    def on_trigger(self, trig: Trigger, now_ns: int | None = None) -> None:
         self.period_ns = trig.period_ns
+        if not self._triggered:
+            # the first frames wait for every rig camera (see assume_all_live)
+            self.assume_all_live(time.monotonic_ns() if now_ns is None else now_ns)
+            self._triggered = True
         self._get(trig.frame, trig.t_mono_ns)
 
     def on_cues(self, msg: Cues, now_ns: int) -> None:
@@ -97,8 +102,9 @@ class FrameGatherer:
         pf.t_first_ns = pf.t_first_ns or now_ns
 
     def assume_all_live(self, now_ns: int) -> None:
-        """At start every rig camera counts as live: the first frames wait for all of them
-        (up to the deadline) instead of completing with whichever answered first."""
+        """Every rig camera not heard of yet counts as live from ``now_ns`` (done at the first
+        trigger): the first frames wait for all of them (up to the deadline) instead of
+        completing with whichever camera answered first."""
         for c in self.cameras:
             self.last_seen.setdefault(c, now_ns)
 
@@ -200,7 +206,6 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
     """The fusion loop until ``rt.stop``."""
     rig_cameras = list(rig.names)
     gather = FrameGatherer(rig_cameras, deadline_frac)
-    gather.assume_all_live(time.monotonic_ns())
     inbox: queue.SimpleQueue = queue.SimpleQueue()
 
     def on_trigger(sample) -> None:
@@ -229,7 +234,7 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
                 msg = None
             while msg is not None:
                 if isinstance(msg, Trigger):
-                    gather.on_trigger(msg)
+                    gather.on_trigger(msg, time.monotonic_ns())
                 else:
                     gather.on_cues(msg, time.monotonic_ns())
                 try:

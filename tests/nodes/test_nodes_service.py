@@ -13,8 +13,7 @@ from mocap_rt.io.recording import Recording
 
 pytestmark = pytest.mark.slow
 
-ROOT_SEGMENT = ("pelvis",)
-MAX_MEDIAN_JOINT_ERROR_M = 0.15     # the service's poses must be a body, near the truth
+MAX_MEDIAN_CUE_ERROR_M = 0.10      # triangulated cues of the service vs the studio's truth
 
 
 @pytest.fixture(scope="module")
@@ -63,10 +62,14 @@ def test_cli_run_replay_records_poses_and_rerun_file(walk, tmp_path):
     np.testing.assert_allclose(clip.motion, poses["bvh_motion"], atol=1e-4)
     truth = np.load(walk / "truth.npz")
     f = poses["frames"]
-    ok = np.isfinite(poses["joints"]).all(axis=(1, 2))
-    assert ok.mean() > 0.8
-    err = np.linalg.norm(poses["joints"][ok] - truth["joints"][f[ok]], axis=2)
-    assert np.median(err) < MAX_MEDIAN_JOINT_ERROR_M, np.median(err)
+    assert np.isfinite(poses["joints"]).all(axis=(1, 2)).mean() > 0.8
+    # the cues that went through the service (2D over Zenoh, triangulated by fusion) are the
+    # studio's: head, hands and torso within a few centimetres of the truth (the feet and the
+    # IK are the perception's and body's business, measured in their own benches)
+    err = np.linalg.norm(poses["cues_3d"] - truth["cues"][f], axis=2)          # (F, 6) metres
+    for c in ("head", "hand_l", "hand_r", "torso"):
+        i = list(truth["cue_names"]).index(c)
+        assert np.nanmedian(err[:, i]) < MAX_MEDIAN_CUE_ERROR_M, (c, np.nanmedian(err[:, i]))
 
     # viewer: the .rrd holds the skeleton, cues, camera frusta, images with ellipses, latency
     text = _rrd_entities(rrd)

@@ -89,14 +89,14 @@ def _cues(cam, frame, t_trig):
 def test_gatherer_waits_for_live_cameras_then_deadline():
     g = FrameGatherer(["a", "b", "c"], deadline_frac=0.5, liveness_s=0.1)
     period = 40 * MS
-    g.on_trigger(Trigger("r", 0, 1000 * MS, 0, period))
+    g.on_trigger(Trigger("r", 0, 1000 * MS, 0, period), now_ns=1000 * MS)
     now = 1001 * MS
     for cam in "abc":
         g.on_cues(_cues(cam, 0, 1000 * MS), now)
     ready = g.ready(now)                                  # all three live cameras answered
     assert [pf.frame for pf in ready] == [0] and set(ready[0].cues) == {"a", "b", "c"}
     # frame 1: only a and b answer; c is still live -> wait ...
-    g.on_trigger(Trigger("r", 1, 1040 * MS, 0, period))
+    g.on_trigger(Trigger("r", 1, 1040 * MS, 0, period), now_ns=1040 * MS)
     g.on_cues(_cues("a", 1, 1040 * MS), 1041 * MS)
     g.on_cues(_cues("b", 1, 1040 * MS), 1041 * MS)
     assert g.ready(1042 * MS) == []
@@ -108,7 +108,7 @@ def test_gatherer_waits_for_live_cameras_then_deadline():
     g.on_cues(_cues("c", 1, 1040 * MS), 1061 * MS)
     assert g.late_cues == 1
     # once c has been silent longer than liveness, frames complete without waiting for it
-    g.on_trigger(Trigger("r", 2, 1200 * MS, 0, period))
+    g.on_trigger(Trigger("r", 2, 1200 * MS, 0, period), now_ns=1200 * MS)
     g.on_cues(_cues("a", 2, 1200 * MS), 1201 * MS)
     g.on_cues(_cues("b", 2, 1200 * MS), 1201 * MS)
     assert [pf.frame for pf in g.ready(1201 * MS)] == [2]
@@ -118,8 +118,8 @@ def test_gatherer_waits_for_live_cameras_then_deadline():
 def test_gatherer_drops_empty_frames_and_overtaken_frames():
     g = FrameGatherer(["a"], deadline_frac=0.5, liveness_s=1.0)
     period = 10 * MS
-    g.on_trigger(Trigger("r", 0, 0, 0, period))          # nobody answers frame 0
-    g.on_trigger(Trigger("r", 1, 10 * MS, 0, period))
+    g.on_trigger(Trigger("r", 0, 0, 0, period), now_ns=0)          # nobody answers frame 0
+    g.on_trigger(Trigger("r", 1, 10 * MS, 0, period), now_ns=10 * MS)
     g.on_cues(_cues("a", 1, 10 * MS), 11 * MS)
     ready = g.ready(11 * MS)
     assert [pf.frame for pf in ready] == [1]              # frame 0 (no cues) overtaken
@@ -298,8 +298,7 @@ def test_output_paths_never_reuse_existing_files(tmp_path):
 
 def test_gatherer_first_frames_wait_for_every_rig_camera():
     g = FrameGatherer(["a", "b"], deadline_frac=0.5, liveness_s=0.5)
-    g.assume_all_live(0)
-    g.on_trigger(Trigger("r", 0, 0, 0, 40 * MS))
+    g.on_trigger(Trigger("r", 0, 0, 0, 40 * MS), now_ns=0)     # the first trigger: all presumed live
     g.on_cues(_cues("a", 0, 0), 1 * MS)
     assert g.ready(2 * MS) == []                       # b is presumed live: wait for it
     g.on_cues(_cues("b", 0, 0), 3 * MS)
@@ -309,8 +308,8 @@ def test_gatherer_first_frames_wait_for_every_rig_camera():
 def test_gatherer_fuses_an_older_partial_frame_before_a_newer_complete_one():
     g = FrameGatherer(["a", "b"], deadline_frac=0.8, liveness_s=1.0)
     g.assume_all_live(0)
-    g.on_trigger(Trigger("r", 5, 0, 0, 40 * MS))
-    g.on_trigger(Trigger("r", 6, 40 * MS, 0, 40 * MS))
+    g.on_trigger(Trigger("r", 5, 0, 0, 40 * MS), now_ns=0)
+    g.on_trigger(Trigger("r", 6, 40 * MS, 0, 40 * MS), now_ns=40 * MS)
     g.on_cues(_cues("a", 5, 0), 41 * MS)          # frame 5: only a so far (deadline 32 ms ...
     g.on_cues(_cues("a", 6, 40 * MS), 41 * MS)
     g.on_cues(_cues("b", 6, 40 * MS), 41 * MS)     # ... frame 6 complete
@@ -318,7 +317,7 @@ def test_gatherer_fuses_an_older_partial_frame_before_a_newer_complete_one():
     assert [pf.frame for pf in out] == [5, 6] and set(out[0].cues) == {"a"}
     assert g.frames_dropped == 0
     # a frame without any answer waits past its deadline for a late one
-    g.on_trigger(Trigger("r", 7, 80 * MS, 0, 40 * MS))
+    g.on_trigger(Trigger("r", 7, 80 * MS, 0, 40 * MS), now_ns=80 * MS)
     assert g.ready(200 * MS) == [] and g.next_deadline_ns() is None
     g.on_cues(_cues("b", 7, 80 * MS), 201 * MS)
     assert [pf.frame for pf in g.ready(201 * MS)] == [7]
