@@ -10,7 +10,9 @@ angles) whose hands, feet and head lie on the cues when they are reachable.
   perpendicular to the body axis; when the torso moves faster than
   ``walk_speed_mps`` the walking direction (facing = velocity) is blended in and the
   along-track components of the feet and hands vectors (steps, arm swing) are removed. The
-  caller passes the previous right axis so the estimate can be smoothed.
+  caller passes the previous right axis so the estimate can be smoothed. ``refine_pan``
+  then turns it (+-90 deg in 15 deg steps) to the heading whose analytic pose violates
+  the range-of-motion limits least (a wrong pan makes the limbs twist out of range).
 * Limbs (A.5): a goal is a direction and a clamped distance: the limb always points at
   its cue; the distance is clamped into ``[|L1 - L2|, L1 + L2]`` (fully stretched
   outside the reachable range). The elbow/knee lies in the plane of the limb and a
@@ -49,6 +51,9 @@ class AnalyticConfig:
     walk_weight: float = 2.0        # weight of the walking direction at twice that speed
     pan_smoothing: float = 0.5      # 0 = no memory, -> 1 = keep the previous pan (walking)
     still_pan_smoothing: float = 0.5  # the same when standing (feet/hands only: less reliable)
+    pan_search_deg: float = 90.0    # refine the pan within +- this (0 = off), see refine_pan
+    pan_search_step_deg: float = 15.0
+    pan_change_cost: float = 0.2    # cost per degree of pan change vs degrees of limit violation
     snap_standing: bool = False     # standing: take the feet/hands line modulo 90 deg near the previous pan
 
 
@@ -245,6 +250,62 @@ def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
     angles = np.empty((N_JOINTS, 3))
     _angles_from_frames(model.parents, model.rest_local, model.dof, R, angles)
     return pelvis, angles
+
+
+@njit(cache=True, nogil=True)
+def _pan_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, parents,
+                rest_local, dof, lo, hi, step, n_steps, change_cost, out_axes):
+    J = parents.shape[0]
+    R = np.empty((J, 3, 3))
+    ang = np.empty((J, 3))
+    axc = np.empty((3, 3))
+    up = axes[:, 2].copy()
+    right0 = axes[:, 0].copy()
+    best = np.inf
+    for k in range(-n_steps, n_steps + 1):
+        a = step * k
+        r = _rot_about(up, a, right0)
+        f = _cross(up, r)
+        for i in range(3):
+            axc[i, 0], axc[i, 1], axc[i, 2] = r[i], f[i], up[i]
+        _analytic(cues, axc, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, R)
+        _angles_from_frames(parents, rest_local, dof, R, ang)
+        viol = 0.0
+        for j in range(1, J):
+            for q in range(3):
+                if dof[j, q]:
+                    viol += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
+        cost = np.degrees(viol) + change_cost * abs(np.degrees(a))
+        if cost < best:
+            best = cost
+            out_axes[:, :] = axc
+    return best
+
+
+def refine_pan(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
+               config: AnalyticConfig = AnalyticConfig()) -> np.ndarray:
+    """Body axes (3, 3) with the pan turned (within +-``pan_search_deg``) to the heading
+    whose analytic pose violates the joint limits (B.7 table) least, plus
+    ``pan_change_cost`` per degree turned.
+
+    The pan from the hands/feet/walking is a guess; a wrong pan puts the shoulders and
+    hips where the limbs must twist beyond their range of motion to reach the cues.
+    cues : (6, 3) all finite, metres, world. axes : (3, 3) from ``body_axes``.
+    """
+    if config.pan_search_deg <= 0 or config.pan_search_step_deg <= 0:
+        return axes
+    L = model.lengths
+    lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
+                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
+    out = np.empty((3, 3))
+    n = int(config.pan_search_deg // config.pan_search_step_deg)
+    _pan_search(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
+                lengths, np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
+                np.radians(config.knee_open_deg), np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2]),
+                _LIMB_JOINTS, model.parents, model.rest_local, model.dof,
+                np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
+                np.radians(config.pan_search_step_deg), n, config.pan_change_cost, out)
+    return out
 
 
 def pose_joints(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray) -> np.ndarray:

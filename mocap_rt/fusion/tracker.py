@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocap_rt.body.analytic import AnalyticConfig, analytic_pose, body_axes, pan_angle
+from mocap_rt.body.analytic import AnalyticConfig, analytic_pose, body_axes, pan_angle, refine_pan
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
@@ -226,6 +226,8 @@ class BodyTracker:
         Returns (root (3,), angles (J, 3) radians, joints (J, 3) metres, axes (3, 3)).
         """
         axes = body_axes(cues_ik, self._right, velocity, self.config.analytic)
+        if self.config.analytic.pan_search_deg > 0:
+            axes = refine_pan(self.model, self.fill_missing(cues_ik, axes), axes, self.config.analytic)
         self._right = axes[:, 0]
         root, angles, joints = self.solve_with_axes(cues_ik, axes)
         return root, angles, joints, axes

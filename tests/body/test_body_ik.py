@@ -177,3 +177,32 @@ def test_body_axes_pan_from_feet_and_walking():
     walk[3], walk[4] = [-0.3, 0.05, 0.05], [0.3, -0.05, 0.05]
     ax = body_axes(walk, velocity=np.array([1.2, 0, 0]), config=AnalyticConfig())
     assert abs(np.degrees(pan_angle(ax)) + 90) < 15
+
+
+def test_refine_pan_turns_a_wrong_heading_back(data_dir):
+    from mocap_rt.body.analytic import refine_pan
+    from mocap_rt.body.estimate import bone_lengths_from_joints
+    from mocap_rt.io.bvh import read_bvh
+    from mocap_rt.studio.body_map import body_motion
+
+    joints = body_motion(read_bvh(data_dir / "bvh" / "cmu" / "cmu_131_03_start_hop_stop.bvh"), fps=10,
+                         n_frames=30).joints
+    model = body_model(bone_lengths_from_joints(joints), preset="paper")
+    better = 0
+    for P in joints[::3]:
+        cues = P[list(CUE_JOINT_INDEX)]
+        up = cues[0] - cues[5]
+        up /= np.linalg.norm(up)
+        r = P[J["hip_r"]] - P[J["hip_l"]] + P[J["shoulder_r"]] - P[J["shoulder_l"]]
+        r -= up * (r @ up)
+        r /= np.linalg.norm(r)
+        true_axes = np.column_stack([r, np.cross(up, r), up])
+        for wrong in (-60.0, 60.0):
+            a = np.radians(wrong)
+            rw = r * np.cos(a) + np.cross(up, r) * np.sin(a)
+            axes = np.column_stack([rw, np.cross(up, rw), up])
+            got = refine_pan(model, cues, axes)
+            np.testing.assert_allclose(got.T @ got, np.eye(3), atol=1e-9)
+            err = np.degrees(np.arccos(np.clip(got[:, 0] @ true_axes[:, 0], -1, 1)))
+            better += err < abs(wrong)
+    assert better >= 16  # of 20: a wrong heading makes the limbs leave their range of motion
