@@ -22,8 +22,8 @@ pytestmark = [pytest.mark.slow, pytest.mark.netns]
 
 SUBNET = "10.231.{}.{}"          # RFC 1918, used only inside the test's namespaces
 PORT = 7447
-PROBE_S = 14.0                   # how long the probe listens (node start-up included)
-SYNC_DELAY_S = 6.0               # sync waits for the workers' warm-up before triggering
+WINDOW_S = 4.0                   # the probe counts poses this long once every node is ready
+READY_TIMEOUT_S = 120.0          # node start-up (imports, warm-up) on a loaded machine
 
 
 def sh(*argv, check=True) -> str:
@@ -84,20 +84,22 @@ def test_nodes_in_separate_network_namespaces(tmp_path, tmp_path_factory, data_d
         for cam, role in (("cam_1", "cam1"), ("cam_4", "cam4")):
             start(role, ["-m", "nodes.camera_worker", *common, "--camera", cam, "--source", f"replay:{walk}",
                          "--node", f"worker-{cam}"], ["fusion"])
-        probe = start("probe", [str(Path(__file__).with_name("netns_probe.py")), "netns", str(PROBE_S)],
+        probe = start("probe", [str(Path(__file__).with_name("netns_probe.py")), "netns", str(WINDOW_S),
+                                "--wait-nodes", "fusion,worker-cam_1,worker-cam_4",
+                                "--timeout", str(READY_TIMEOUT_S)],
                       ["fusion", "cam1", "cam4"])
-        start("sync", ["-m", "nodes.sync", *common, "--fps", "30", "--start-delay", str(SYNC_DELAY_S)],
-              ["fusion", "cam1", "cam4", "probe"])
+        start("sync", ["-m", "nodes.sync", *common, "--fps", "30"], ["fusion", "cam1", "cam4", "probe"])
         before = link_bytes(ns["fusion"], "eth0")
-        probe.wait(timeout=PROBE_S + 60)
+        probe.wait(timeout=READY_TIMEOUT_S + WINDOW_S + 30)
         logs = {p.name: p.read_text()[-1500:] for p in tmp_path.glob("*.log")}
         summary = json.loads((tmp_path / "probe.log").read_text().strip().splitlines()[-1])
         crossed = link_bytes(ns["fusion"], "eth0") - before
-        print(f"netns: {summary['poses']} poses, cameras {summary['cameras_used']}, "
+        print(f"netns: ready after {summary['ready_after_s']} s, {summary['poses']} poses, cameras {summary['cameras_used']}, "
               f"{summary['all_cameras_frames']} with both cameras, {crossed} bytes through fusion's veth")
-        assert summary["poses"] > 30, logs
+        assert summary["ready_after_s"] is not None, (summary, logs)
+        assert summary["poses"] > 0.5 * 30 * WINDOW_S, (summary, logs)
         assert summary["cameras_used"] == ["cam_1", "cam_4"], logs
-        assert summary["all_cameras_frames"] > 0.8 * summary["poses"]
+        assert summary["all_cameras_frames"] > 0.5 * summary["poses"]
         frames = summary["frames"]
         assert frames == sorted(frames) and len(set(frames)) == len(frames)
         assert summary["decode_drops"] == 0
