@@ -51,16 +51,42 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, sums):  # pragma: no cov
 
 
 @numba.njit(cache=True, nogil=True)
-def _bilinear(img, x, y):  # pragma: no cover - numba
+def _own(img, x, y, sites, k):  # pragma: no cover - numba
+    """Colour value of pixel (x, y) for blob k: 0 if a pixel of the colour is nearer another
+    blob's centre (``sites`` (K, 2), NaN = absent): the initial labelling's assignment."""
+    v = img[y, x]
+    if v <= 0.0 or sites.shape[0] < 2:
+        return v
+    dk = _mahal2(x, y, sites, k)
+    for j in range(sites.shape[0]):
+        if j != k and math.isfinite(sites[j, 0]):
+            if _mahal2(x, y, sites, j) < dk:
+                return 0.0
+    return v
+
+
+@numba.njit(cache=True, nogil=True)
+def _mahal2(x, y, sites, k):  # pragma: no cover - numba
+    """Squared Mahalanobis distance of (x, y) to site k: sites rows (mx, my, i_xx, i_xy, i_yy)."""
+    dx = x - sites[k, 0]
+    dy = y - sites[k, 1]
+    if sites.shape[1] < 5:
+        return dx * dx + dy * dy
+    return sites[k, 2] * dx * dx + 2.0 * sites[k, 3] * dx * dy + sites[k, 4] * dy * dy
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear_own(img, x, y, sites, k):  # pragma: no cover - numba
+    """Bilinear sample of ``img`` at (x, y) counting only blob k's pixels (see ``_own``)."""
     h, w = img.shape
-    if x < 0.0 or y < 0.0 or x > w - 1.0 or y > h - 1.0:
+    if x < 0.0 or y < 0.0 or x > w - 1.0 or y > h - 1.0 or w < 2 or h < 2:
         return 0.0
-    xi = min(int(x), w - 2) if w > 1 else 0
-    yi = min(int(y), h - 2) if h > 1 else 0
+    xi = min(int(x), w - 2)
+    yi = min(int(y), h - 2)
     fx = x - xi
     fy = y - yi
-    a = img[yi, xi] * (1.0 - fx) + img[yi, xi + 1] * fx if w > 1 else img[yi, xi]
-    b = img[yi + 1, xi] * (1.0 - fx) + img[yi + 1, xi + 1] * fx if h > 1 and w > 1 else a
+    a = _own(img, xi, yi, sites, k) * (1.0 - fx) + _own(img, xi + 1, yi, sites, k) * fx
+    b = _own(img, xi, yi + 1, sites, k) * (1.0 - fx) + _own(img, xi + 1, yi + 1, sites, k) * fx
     return a * (1.0 - fy) + b * fy
 
 
@@ -80,7 +106,7 @@ def ellipse_frame(cov):  # pragma: no cover - numba
 
 @numba.njit(cache=True, nogil=True)
 def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_px, win_half_px, mirror_iters,
-                   contour):  # pragma: no cover
+                   contour, sites, k_site):  # pragma: no cover
     """Deformable-ellipse boundary (A.2, eq. 3-4) and the centroid of the region it encloses.
 
     The initial ellipse is ``{mean + scale * Sigma^(1/2) u, |u| = 1}`` (scale 2 = the edge of a
@@ -96,6 +122,11 @@ def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_p
     part of the blob; when the opposite point borders the background, the point is replaced
     by the opposite point mirrored through the current centre (head, hand and shoe are
     centrally symmetric shapes). ``mirror_iters`` rounds (0 = the paper's plain centroid).
+
+    sites (K, 2) means or (K, 5) means + inverse covariances (i_xx, i_xy, i_yy), k_site: the
+    blobs of the same colour (NaN = absent): colour pixels nearer (Mahalanobis) another
+    blob's Gaussian do not count as this blob's (exact pixel assignment, A.2), so two
+    touching hands or shoes do not merge.
 
     contour (n_pts, 2) float64 receives the (completed) boundary. Returns (cx, cy, area_px2),
     the centroid and area of the polygon (the region inside the deformed contour).
@@ -133,8 +164,8 @@ def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_p
             q = -D - win_half_px + 0.5 + i
             sx = px + q * nx
             sy = py + q * ny
-            prof[i] = (_bilinear(skin, sx - tx, sy - ty) + _bilinear(skin, sx, sy)
-                       + _bilinear(skin, sx + tx, sy + ty))
+            prof[i] = (_bilinear_own(skin, sx - tx, sy - ty, sites, k_site) + _bilinear_own(skin, sx, sy, sites, k_site)
+                       + _bilinear_own(skin, sx + tx, sy + ty, sites, k_site))
         # window sums for d = -D..D: samples i = d + D .. d + D + L - 1
         f = np.empty(2 * D + 1)
         acc = 0.0
@@ -202,7 +233,7 @@ def _polygon_centroid(contour, n_pts, mx, my):  # pragma: no cover - numba
 
 @numba.njit(cache=True, nogil=True)
 def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, min_area, scale, n_pts, search_frac,
-                     search_min_px, win_half_px, mirror_iters, max_shift_frac, sums, xy, cov, area,
+                     search_min_px, win_half_px, mirror_iters, max_shift_frac, exclusive, sums, xy, cov, area,
                      contours, has_contour):  # pragma: no cover - numba
     """One tracker frame in one call: labelling (``label_moments``) + Gaussian blobs +
     deformable ellipse of each visible blob. Python per-blob overhead was most of the
@@ -236,6 +267,21 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, min_area
         label_moments(skin, sx0, sy0, sx1, sy1, centers, gate2, sums)
     mean = np.empty(2)
     c2 = np.empty((2, 2))
+    sites = np.full((K, 5), np.nan)      # mean + inverse covariance of each found blob
+    for k in range(K):
+        n = sums[k, 0]
+        if exclusive and n >= min_area:
+            mx = sums[k, 1] / n
+            my = sums[k, 2] / n
+            cxx = sums[k, 3] / n - mx * mx + 1.0 / 12.0
+            cxy = sums[k, 4] / n - mx * my
+            cyy = sums[k, 5] / n - my * my + 1.0 / 12.0
+            det = max(cxx * cyy - cxy * cxy, 1e-9)
+            sites[k, 0] = mx
+            sites[k, 1] = my
+            sites[k, 2] = cyy / det
+            sites[k, 3] = -cxy / det
+            sites[k, 4] = cxx / det
     for k in range(K):
         has_contour[k] = False
         n = sums[k, 0]
@@ -264,7 +310,7 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, min_area
         area[k] = n
         if visible[k]:
             cx, cy, a = deform_ellipse(skin, sil, mean, c2, scale, n_pts, search_frac, search_min_px, win_half_px,
-                                       mirror_iters, contours[k])
+                                       mirror_iters, contours[k], sites, k)
             r_blob = math.sqrt(n / math.pi)
             if a > 0 and math.hypot(cx - mx, cy - my) <= max_shift_frac * r_blob + 0.5:
                 xy[k, 0] = cx

@@ -56,6 +56,7 @@ class BlobParams:
     window_half_px: int = 2             # J(p) window half length along the normal
     max_refine_shift_frac: float = 0.6  # deformed centroid may move this * radius from mu'
     mirror_iters: int = 20              # occlusion completion rounds (converges; blob_kernels.deform_ellipse)
+    exclusive_pixels: bool = True       # boundary search ignores colour pixels of the other blobs
     facing_camera: bool = True          # cold-start convention: image-left = person's right
 
 
@@ -167,6 +168,7 @@ class BlobTracker:
                          np.ascontiguousarray(gate, np.float64), np.ascontiguousarray(visible, np.bool_),
                          float(p.min_area_px), float(p.ellipse_scale), int(p.n_contour_pts), float(p.search_frac),
                          float(p.search_min_px), int(p.window_half_px), int(mirror), float(p.max_refine_shift_frac),
+                         bool(p.exclusive_pixels),
                          self._sums, self._out_xy, self._out_cov, self._out_area, self._out_contours,
                          self._has_contour)
         return self._sums[:, 0] >= p.min_area_px

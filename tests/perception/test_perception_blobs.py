@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 from mocap_rt.perception.blob_kernels import deform_ellipse, label_moments
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
 
+_NO_SITES = np.full((1, 2), np.nan)
+
 
 def _ellipse_map(shape, centre, axes, angle):
     """Skin map (float32 0/1) of an anti-aliased-free drawn ellipse + its exact area centroid."""
@@ -53,7 +55,7 @@ def test_deformable_ellipse_recovers_region_from_a_wrong_initial_ellipse(centre,
     r = 0.5 * np.mean(axes) * 1.3
     cov = np.array([[r * r, 0.2 * r * r], [0.2 * r * r, r * r]])
     contour = np.zeros((24, 2))
-    cx, cy, area = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 24, 0.5, 3.0, 2, 0, contour)
+    cx, cy, area = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 24, 0.5, 3.0, 2, 0, contour, _NO_SITES, 0)
     assert np.hypot(cx - pix_centroid[0], cy - pix_centroid[1]) < 0.35
     assert area == pytest.approx(skin.sum(), rel=0.08)     # the drawn (pixel) region
     assert area == pytest.approx(true_area, rel=0.15)
@@ -146,13 +148,30 @@ def test_occlusion_completion_moves_a_partly_hidden_blob_towards_its_true_centre
     mean = np.array([xs.mean(), ys.mean()])
     cov = np.cov(np.stack([xs, ys]).astype(float))
     contour = np.zeros((32, 2))
-    plain = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour)
-    completed = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.5, 3.0, 2, 20, contour)
+    plain = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour, _NO_SITES, 0)
+    completed = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.5, 3.0, 2, 20, contour, _NO_SITES, 0)
     err_plain = np.hypot(plain[0] - centre[0], plain[1] - centre[1])
     err_completed = np.hypot(completed[0] - centre[0], completed[1] - centre[1])
     assert err_plain > 2.0                      # the visible part's centre is shifted right
     assert err_completed < 0.5 * err_plain
     assert abs(completed[1] - centre[1]) < 0.3  # and not moved across the axis
     # without a silhouette around it (no contact) completion changes nothing
-    again = deform_ellipse(skin, (skin > 0).astype(np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 20, contour)
+    again = deform_ellipse(skin, (skin > 0).astype(np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 20, contour,
+                           _NO_SITES, 0)
     assert again[0] == pytest.approx(plain[0], abs=1e-9)
+
+
+def test_touching_blobs_of_one_colour_do_not_merge():
+    """Two shoes side by side: each blob's boundary search ignores the other's pixels."""
+    a = _ellipse_map((80, 120), (45.0, 40.0), (16.0, 8.0), 0.0)
+    b = _ellipse_map((80, 120), (75.0, 42.0), (16.0, 8.0), 0.0)      # touches a
+    skin = np.maximum(a, b)
+    sites = np.array([[45.0, 40.0], [75.0, 42.0]])
+    contour = np.zeros((32, 2))
+    mean = np.array([46.0, 40.5])
+    cov = np.array([[64.0, 0.0], [0.0, 16.0]])
+    ys, xs = np.nonzero(a)
+    cx, cy, _ = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour, sites, 0)
+    assert np.hypot(cx - xs.mean(), cy - ys.mean()) < 0.6
+    merged = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour, _NO_SITES, 0)
+    assert merged[0] > cx + 0.5            # without the assignment the search leaks into b
