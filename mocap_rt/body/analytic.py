@@ -54,6 +54,10 @@ class AnalyticConfig:
     pan_search_deg: float = 90.0    # refine the pan within +- this (0 = off), see refine_pan
     pan_search_step_deg: float = 15.0
     pan_change_cost: float = 0.2    # cost per degree of pan change vs degrees of limit violation
+    swivel_search_deg: float = 60.0  # refine each elbow/knee pole within +- this (0 = off)
+    swivel_step_deg: float = 15.0
+    swivel_change_cost: float = 0.1  # per degree changed since the previous frame
+    swivel_prior_cost: float = 0.2   # per degree away from the default pole
     snap_standing: bool = False     # standing: take the feet/hands line modulo 90 deg near the previous pan
 
 
@@ -169,8 +173,12 @@ def _frame(z, x_hint, out):
 
 
 @njit(cache=True, nogil=True)
-def _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, R):
-    """Fill the joint frames R (J, 3, 3); return the pelvis position (see analytic_pose)."""
+def _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, swivel, R):
+    """Fill the joint frames R (J, 3, 3); return the pelvis position (see analytic_pose).
+
+    swivel : (4,) radians, extra rotation of each limb's pole about the root -> goal line
+    (arm_l, arm_r, leg_l, leg_r).
+    """
     trunk, sh_half, upper_len, fore_len, hip_half, thigh, shank, foot_len = lengths
     right = axes[:, 0].copy()
     forward = axes[:, 1].copy()
@@ -195,6 +203,9 @@ def _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest
         shoulder = neck + right * (sx * sh_half)
         back_down = -forward * np.cos(elbow_down) - up * np.sin(elbow_down)
         pole = _rot_about(up, -sx * elbow_raise, back_down)
+        d = cues[hand_c] - shoulder
+        if swivel[s] != 0.0 and d @ d > 1e-12:
+            pole = _rot_about(d, swivel[s], pole)
         elbow, hand, u, w = _two_link(shoulder, cues[hand_c], upper_len, fore_len, pole)
         x = _cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
         _frame(elbow - shoulder, x, R[jsh])
@@ -204,6 +215,9 @@ def _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest
         # leg: hip -> knee -> foot centre; the foot is rigid on the shank (paper model)
         hip = pelvis + right * (sx * hip_half)
         pole = _rot_about(up, sx * knee_open, forward)
+        d = cues[foot_c] - hip
+        if swivel[2 + s] != 0.0 and d @ d > 1e-12:
+            pole = _rot_about(d, swivel[2 + s], pole)
         knee, foot, u, w = _two_link(hip, cues[foot_c], thigh, L2_leg, pole)
         n = _cross(u, w)  # flexion axis (the body's right for a straight standing leg)
         u2 = _nunit(foot - knee, -up)
@@ -216,15 +230,25 @@ def _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest
 
 @njit(cache=True, nogil=True)
 def _angles_from_frames(parents, rest_local, dof, R, out):
+    """Euler X-Y-Z angles (J, 3) of each frame relative to parent @ rest (3x3 products
+    written out: numba's ``@`` on 3x3 goes through BLAS and costs more than the maths)."""
+    F = np.empty((3, 3))
+    M = np.empty((3, 3))
     for j in range(parents.shape[0]):
         p = parents[j]
         if p < 0:
-            M = rest_local[j].T @ R[j]
+            F[:, :] = rest_local[j]
         else:
-            M = (R[p] @ rest_local[j]).T @ R[j]
-        a = euler_xyz_from_matrix(M)
+            for a in range(3):
+                for b in range(3):
+                    F[a, b] = R[p, a, 0] * rest_local[j, 0, b] + R[p, a, 1] * rest_local[j, 1, b] \
+                        + R[p, a, 2] * rest_local[j, 2, b]
+        for a in range(3):
+            for b in range(3):
+                M[a, b] = F[0, a] * R[j, 0, b] + F[1, a] * R[j, 1, b] + F[2, a] * R[j, 2, b]
+        ang = euler_xyz_from_matrix(M)
         for k in range(3):
-            out[j, k] = a[k] if dof[j, k] else 0.0
+            out[j, k] = ang[k] if dof[j, k] else 0.0
 
 
 _LIMB_JOINTS = np.array([[J[f"{n}_{s}"] for n in ("shoulder", "elbow", "wrist", "hand", "hip", "knee", "ankle", "foot")]
@@ -232,8 +256,12 @@ _LIMB_JOINTS = np.array([[J[f"{n}_{s}"] for n in ("shoulder", "elbow", "wrist", 
 
 
 def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
-                  config: AnalyticConfig = AnalyticConfig()) -> tuple[np.ndarray, np.ndarray]:
+                  config: AnalyticConfig = AnalyticConfig(),
+                  swivel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Pose from the six cues: ``(root_pos (3,), angles (J, 3) radians)``.
+
+    swivel : (4,) radians about each limb's root -> goal line (arm_l, arm_r, leg_l, leg_r)
+    added to the default poles (see ``refine_swivel``); default none.
 
     cues : (6, 3) metres, world, all finite (the tracker fills gaps from its filter).
     axes : (3, 3) body frame from ``body_axes`` (columns right, forward, up).
@@ -246,14 +274,14 @@ def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
     pelvis = _analytic(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
                        lengths, np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
                        np.radians(config.knee_open_deg),
-                       foot_rest, _LIMB_JOINTS, R)
+                       foot_rest, _LIMB_JOINTS, np.zeros(4) if swivel is None else np.asarray(swivel, np.float64), R)
     angles = np.empty((N_JOINTS, 3))
     _angles_from_frames(model.parents, model.rest_local, model.dof, R, angles)
     return pelvis, angles
 
 
 @njit(cache=True, nogil=True)
-def _pan_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, parents,
+def _pan_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, swivel, parents,
                 rest_local, dof, lo, hi, step, n_steps, change_cost, out_axes):
     J = parents.shape[0]
     R = np.empty((J, 3, 3))
@@ -268,7 +296,7 @@ def _pan_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_re
         f = _cross(up, r)
         for i in range(3):
             axc[i, 0], axc[i, 1], axc[i, 2] = r[i], f[i], up[i]
-        _analytic(cues, axc, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, R)
+        _analytic(cues, axc, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, swivel, R)
         _angles_from_frames(parents, rest_local, dof, R, ang)
         viol = 0.0
         for j in range(1, J):
@@ -283,7 +311,7 @@ def _pan_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_re
 
 
 def refine_pan(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
-               config: AnalyticConfig = AnalyticConfig()) -> np.ndarray:
+               config: AnalyticConfig = AnalyticConfig(), swivel: np.ndarray | None = None) -> np.ndarray:
     """Body axes (3, 3) with the pan turned (within +-``pan_search_deg``) to the heading
     whose analytic pose violates the joint limits (B.7 table) least, plus
     ``pan_change_cost`` per degree turned.
@@ -302,9 +330,64 @@ def refine_pan(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
     _pan_search(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
                 lengths, np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
                 np.radians(config.knee_open_deg), np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2]),
-                _LIMB_JOINTS, model.parents, model.rest_local, model.dof,
+                _LIMB_JOINTS, np.zeros(4) if swivel is None else np.asarray(swivel, np.float64),
+                model.parents, model.rest_local, model.dof,
                 np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
                 np.radians(config.pan_search_step_deg), n, config.pan_change_cost, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _swivel_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, parents,
+                   rest_local, dof, lo, hi, step, n_steps, prev, change_cost, prior_cost, out):
+    J = parents.shape[0]
+    R = np.empty((J, 3, 3))
+    ang = np.empty((J, 3))
+    sw = np.empty(4)
+    best = np.full(4, np.inf)
+    for k in range(-n_steps, n_steps + 1):
+        for i in range(4):
+            sw[i] = prev[i] + step * k
+        _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, sw, R)
+        _angles_from_frames(parents, rest_local, dof, R, ang)
+        for limb in range(4):
+            side = limb % 2
+            first = 0 if limb < 2 else 4
+            viol = 0.0
+            for m in range(first, first + 3):
+                j = limb_joints[side, m]
+                for q in range(3):
+                    if dof[j, q]:
+                        viol += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
+            cost = np.degrees(viol) + change_cost * abs(np.degrees(step * k)) + prior_cost * abs(np.degrees(sw[limb]))
+            if cost < best[limb]:
+                best[limb] = cost
+                out[limb] = sw[limb]
+
+
+def refine_swivel(model: BodyModel, cues: np.ndarray, axes: np.ndarray, previous: np.ndarray | None = None,
+                  config: AnalyticConfig = AnalyticConfig()) -> np.ndarray:
+    """(4,) swivel angles (radians) of the elbows' and knees' poles about their limb lines.
+
+    Around ``previous`` (default 0), within +-``swivel_search_deg``, each limb takes the
+    swivel whose pose violates its joints' range-of-motion limits least, plus
+    ``swivel_change_cost`` per degree changed and ``swivel_prior_cost`` per degree away
+    from the default pole (the paper's fixed elbow-raise / knee-open constants).
+    """
+    prev = np.zeros(4) if previous is None else np.asarray(previous, dtype=np.float64)
+    if config.swivel_search_deg <= 0 or config.swivel_step_deg <= 0:
+        return prev.copy()
+    L = model.lengths
+    lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
+                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
+    out = prev.copy()
+    _swivel_search(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
+                   lengths, np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
+                   np.radians(config.knee_open_deg), np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2]),
+                   _LIMB_JOINTS, model.parents, model.rest_local, model.dof,
+                   np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
+                   np.radians(config.swivel_step_deg), int(config.swivel_search_deg // config.swivel_step_deg),
+                   prev, config.swivel_change_cost, config.swivel_prior_cost, out)
     return out
 
 

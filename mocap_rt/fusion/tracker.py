@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocap_rt.body.analytic import AnalyticConfig, analytic_pose, body_axes, pan_angle, refine_pan
+from mocap_rt.body.analytic import (AnalyticConfig, analytic_pose, body_axes, pan_angle, refine_pan,
+                                   refine_swivel)
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
@@ -163,6 +164,7 @@ class BodyTracker:
         self._last_pose: tuple[np.ndarray, np.ndarray] | None = None
         self._pair: tuple[int, int] | None = None
         self._vel: np.ndarray | None = None
+        self._swivel = np.zeros(4)   # elbow/knee pole swivels (analytic.refine_swivel)
         self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
 
     # ------------------------------------------------------------------ model
@@ -226,10 +228,15 @@ class BodyTracker:
         Returns (root (3,), angles (J, 3) radians, joints (J, 3) metres, axes (3, 3)).
         """
         axes = body_axes(cues_ik, self._right, velocity, self.config.analytic)
+        filled = None
         if self.config.analytic.pan_search_deg > 0:
-            axes = refine_pan(self.model, self.fill_missing(cues_ik, axes), axes, self.config.analytic)
+            filled = self.fill_missing(cues_ik, axes)
+            axes = refine_pan(self.model, filled, axes, self.config.analytic, self._swivel)
+        if self.config.analytic.swivel_search_deg > 0:
+            filled = self.fill_missing(cues_ik, axes)
+            self._swivel = refine_swivel(self.model, filled, axes, self._swivel, self.config.analytic)
         self._right = axes[:, 0]
-        root, angles, joints = self.solve_with_axes(cues_ik, axes)
+        root, angles, joints = self.solve_with_axes(cues_ik, axes, self._swivel)
         return root, angles, joints, axes
 
     def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
@@ -244,13 +251,14 @@ class BodyTracker:
             out[missing] = out[C_TORSO] + (rest[missing] - rest[C_TORSO]) @ axes.T
         return out
 
-    def solve_with_axes(self, cues_ik: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def solve_with_axes(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Stateless IK for given body axes: (root (3,), angles (J, 3), joints (J, 3)).
 
         Missing hand/foot cues (NaN rows) are filled from the rest pose (``fill_missing``).
         """
         cues_ik = self.fill_missing(cues_ik, axes)
-        root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic)
+        root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic, swivel)
         model = self.model
         if self.config.ik == "ccd":
             res = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
