@@ -206,3 +206,29 @@ def test_refine_pan_turns_a_wrong_heading_back(data_dir):
             err = np.degrees(np.arccos(np.clip(got[:, 0] @ true_axes[:, 0], -1, 1)))
             better += err < abs(wrong)
     assert better >= 16  # of 20: a wrong heading makes the limbs leave their range of motion
+
+
+def test_refine_swivel_keeps_the_goals_and_reduces_limit_violations():
+    from mocap_rt.body.analytic import refine_swivel
+
+    model = body_model(preset="paper")
+    rng = np.random.default_rng(12)
+
+    def violation(a):
+        lo, hi = model.limits[..., 0], model.limits[..., 1]
+        v = np.maximum(0, lo - a) + np.maximum(0, a - hi)
+        v[0] = 0
+        return np.degrees(v[model.dof[:, :] & (np.arange(20)[:, None] > 0)]).sum()
+
+    for _ in range(8):
+        a = _paper_pose(model, rng)
+        root = rng.normal([0, 0, 1], 0.2)
+        P, R = forward_kinematics(model, root, a)
+        cues = P[list(CUE_JOINT_INDEX)]
+        sw = refine_swivel(model, cues, R[0])
+        assert sw.shape == (4,) and np.all(np.abs(sw) <= np.radians(60) + 1e-12)
+        r0, a0 = analytic_pose(model, cues, R[0])
+        r1, a1 = analytic_pose(model, cues, R[0], swivel=sw)
+        P1 = forward_kinematics(model, r1, a1)[0]
+        np.testing.assert_allclose(P1[list(CUE_JOINT_INDEX)], cues, atol=1e-9)   # goals still reached
+        assert violation(a1) <= violation(a0) + 1e-9
