@@ -28,6 +28,7 @@ log = logging.getLogger(__name__)
 PREVIEW_JPEG_QUALITY = 70
 TRIGGER_WAIT_S = 0.2           # wake up this often to send status while idle
 PREDICTIONS_KEPT = 8           # predictions for the coming frames kept by frame id
+DEFER_FRACTION = 0.5           # deferred work waits for fusion's answer at most this part of a period
 
 
 class TriggerSlot:
@@ -46,11 +47,17 @@ class TriggerSlot:
             self._cond.notify()
 
     def take(self, timeout_s: float) -> Trigger | None:
+        """The newest trigger, waiting up to ``timeout_s``; None on timeout or ``poke``."""
         with self._cond:
             if self._trigger is None:
                 self._cond.wait(timeout_s)
             trig, self._trigger = self._trigger, None
             return trig
+
+    def poke(self) -> None:
+        """Wake a waiting ``take`` (e.g. a prediction arrived: time for the deferred work)."""
+        with self._cond:
+            self._cond.notify()
 
 
 class PredictionBox:
@@ -99,6 +106,7 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
         msg = rt.decoder.decode(sample.payload, Prediction)
         if msg is not None and msg.prediction.camera == name:
             preds.put(msg.prediction)
+            slot.poke()
 
     cues_pub = session.declare_publisher(keys.cues(name), express=True)
     preview_pub = session.declare_publisher(keys.preview(name)) if preview_every > 0 else None
@@ -107,10 +115,33 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             session.declare_subscriber(keys.prediction(name), on_prediction)]
     rt.publish_status("running", force=True)
     used_pred = 0
+    deferred = None      # (frame, grab, not-after monotonic s): work kept off the critical path
+
+    def do_deferred() -> None:
+        """Preview JPEG, raw frame and the next replay image: done once fusion has answered
+        (its prediction for the next frame arrived) or half a period passed, so that they do
+        not compete with the other cameras' perception of the same frame."""
+        frame, grab, _ = deferred
+        if frame_pub is not None:
+            frame_pub.put(Frame(keys.rig, name, frame, grab.t_wall_ns, grab.image).to_msgpack())
+        if preview_pub is not None and frame % preview_every == 0:
+            ok, jpg = cv2.imencode(".jpg", grab.image, [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_JPEG_QUALITY])
+            if ok:
+                preview_pub.put(Preview(keys.rig, name, frame, jpg.tobytes()).to_msgpack())
+        try:
+            source.prefetch(frame + 1)
+        except (OSError, ValueError) as exc:
+            log.warning("%s: prefetch of frame %d failed: %s", name, frame + 1, exc)
+
     try:
         while not rt.stop.is_set():
-            trig = slot.take(TRIGGER_WAIT_S)
+            wait = TRIGGER_WAIT_S if deferred is None else max(0.0, deferred[2] - time.monotonic())
+            trig = slot.take(wait)
             rt.drops = slot.overwritten
+            if deferred is not None and (trig is not None or preds.get(deferred[0] + 1) is not None
+                                         or time.monotonic() >= deferred[2]):
+                do_deferred()
+                deferred = None
             if trig is None:
                 rt.publish_status()
                 continue
@@ -128,16 +159,7 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             cues_pub.put(Cues(keys.rig, cues, trig.t_mono_ns, grab.t_mono_ns, work_ms).to_msgpack())
             rt.meter.add(work_ms)
             rt.extra["predictions_used"] = used_pred
-            if frame_pub is not None:
-                frame_pub.put(Frame(keys.rig, name, trig.frame, grab.t_wall_ns, grab.image).to_msgpack())
-            if preview_pub is not None and trig.frame % preview_every == 0:
-                ok, jpg = cv2.imencode(".jpg", grab.image, [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_JPEG_QUALITY])
-                if ok:
-                    preview_pub.put(Preview(keys.rig, name, trig.frame, jpg.tobytes()).to_msgpack())
-            try:
-                source.prefetch(trig.frame + 1)
-            except (OSError, ValueError) as exc:
-                log.warning("%s: prefetch of frame %d failed: %s", name, trig.frame + 1, exc)
+            deferred = (trig.frame, grab, time.monotonic() + DEFER_FRACTION * trig.period_ns / 1e9)
             rt.publish_status()
     finally:
         for s in subs:

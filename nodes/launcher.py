@@ -61,6 +61,7 @@ class RunConfig:
     log_dir: Path | None = None
     status_line: bool = True
     fps: float | None = None           # override the trigger base rate
+    nice: int = 0                      # niceness increment of every node (negative: higher priority)
     extra_node_args: dict = field(default_factory=dict)   # node role -> extra argv
 
 
@@ -95,12 +96,20 @@ def free_port() -> int:
     raise RuntimeError("no free TCP port found for the service")
 
 
-def _die_with_parent() -> None:
-    """preexec_fn: the child gets SIGTERM if the launcher dies (Linux prctl PR_SET_PDEATHSIG)."""
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
-    except OSError:
-        pass
+def _child_setup(nice: int):
+    """preexec_fn: the child gets SIGTERM if the launcher dies (Linux prctl PR_SET_PDEATHSIG)
+    and, if asked, a scheduling priority (negative ``nice`` needs root or CAP_SYS_NICE)."""
+    def setup() -> None:
+        try:
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
+        except OSError:
+            pass
+        if nice:
+            try:
+                os.nice(nice)
+            except OSError:
+                pass      # not permitted: run at the normal priority
+    return setup
 
 
 def _json_safe(x):
@@ -233,7 +242,7 @@ class Launcher:
         env = dict(os.environ, PYTHONUNBUFFERED="1", **SINGLE_THREAD_ENV)
         node.proc = subprocess.Popen([sys.executable] + node.argv, stdout=logf, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, env=env, start_new_session=True,
-                                     preexec_fn=_die_with_parent)
+                                     preexec_fn=_child_setup(self.cfg.nice))
         logf.close()
         node.cpu_last_s = 0.0
         log.debug("started %s pid %d", node.name, node.proc.pid)
