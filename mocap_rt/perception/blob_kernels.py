@@ -50,7 +50,7 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, sums):  # pragma: no cov
                 sums[best, 5] += y * y
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _own(img, x, y, sites, k):  # pragma: no cover - numba
     """Colour value of pixel (x, y) for blob k: 0 if a pixel of the colour is nearer another
     blob's centre (``sites`` (K, 2), NaN = absent): the initial labelling's assignment."""
@@ -65,7 +65,7 @@ def _own(img, x, y, sites, k):  # pragma: no cover - numba
     return v
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _mahal2(x, y, sites, k):  # pragma: no cover - numba
     """Squared Mahalanobis distance of (x, y) to site k: sites rows (mx, my, i_xx, i_xy, i_yy)."""
     dx = x - sites[k, 0]
@@ -75,7 +75,7 @@ def _mahal2(x, y, sites, k):  # pragma: no cover - numba
     return sites[k, 2] * dx * dx + 2.0 * sites[k, 3] * dx * dy + sites[k, 4] * dy * dy
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _bilinear_own(img, x, y, sites, k):  # pragma: no cover - numba
     """Bilinear sample of ``img`` at (x, y) counting only blob k's pixels (see ``_own``)."""
     h, w = img.shape
@@ -232,8 +232,7 @@ def _polygon_centroid(contour, n_pts, mx, my):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True)
-def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, min_area, scale, n_pts, search_frac,
-                     search_min_px, win_half_px, mirror_iters, max_shift_frac, exclusive, sums, xy, cov, area,
+def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, kp, sums, xy, cov, area,
                      contours, has_contour):  # pragma: no cover - numba
     """One tracker frame in one call: labelling (``label_moments``) + Gaussian blobs +
     deformable ellipse of each visible blob. Python per-blob overhead was most of the
@@ -242,7 +241,18 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, min_area
     centers (K, 2) ROI px (NaN = none), gate (K,) px, visible (K,) bool. Outputs (K rows):
     sums (K, 6) moments, xy (K, 2) cue (NaN if < min_area pixels), cov (K, 2, 2), area (K,),
     contours (K, n_pts, 2), has_contour (K,) bool (False: occluded or refinement rejected).
+    kp: packed parameters (min_area, scale, n_pts, search_frac, search_min_px, win_half_px,
+    mirror_iters, max_shift_frac, exclusive) - one array, as numba's dispatch costs per argument.
     """
+    min_area = kp[0]
+    scale = kp[1]
+    n_pts = int(kp[2])
+    search_frac = kp[3]
+    search_min_px = kp[4]
+    win_half_px = int(kp[5])
+    mirror_iters = int(kp[6])
+    max_shift_frac = kp[7]
+    exclusive = kp[8] > 0
     K = centers.shape[0]
     lox = 1e18
     loy = 1e18
@@ -309,8 +319,17 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, min_area
         xy[k, 1] = my
         area[k] = n
         if visible[k]:
+            # only blobs within reach compete for pixels (the test costs per sample)
+            reach = 2.5 * (math.sqrt(max(cxx, cyy)) + 1.0)
+            n_near = 0
+            for j in range(K):
+                if j != k and math.isfinite(sites[j, 0]):
+                    rj = 2.5 * math.sqrt(max(1.0 / max(sites[j, 2], 1e-12), 1.0 / max(sites[j, 4], 1e-12)))
+                    if math.hypot(sites[j, 0] - mx, sites[j, 1] - my) < 2.0 * (reach + rj):
+                        n_near += 1
+            own = sites if n_near > 0 else sites[k:k + 1]
             cx, cy, a = deform_ellipse(skin, sil, mean, c2, scale, n_pts, search_frac, search_min_px, win_half_px,
-                                       mirror_iters, contours[k], sites, k)
+                                       mirror_iters, contours[k], own, k if n_near > 0 else 0)
             r_blob = math.sqrt(n / math.pi)
             if a > 0 and math.hypot(cx - mx, cy - my) <= max_shift_frac * r_blob + 0.5:
                 xy[k, 0] = cx
@@ -340,3 +359,33 @@ def update_tracks(found, new_xy, new_cov, xy, vel, radius, coast, last_seen, max
         l1 = tr + math.sqrt(0.25 * (new_cov[k, 0, 0] - new_cov[k, 1, 1]) ** 2 + new_cov[k, 0, 1] ** 2)
         radius[k] = 2.0 * math.sqrt(max(l1, 0.25))
         coast[k] = 0
+
+
+@numba.njit(cache=True, nogil=True)
+def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_pred, ox, oy, gp,
+                  centers, gate):  # pragma: no cover - numba
+    """Labelling centres (ROI px) and gate radii of one tracker for a frame.
+
+    Own prediction: constant velocity, NaN after ``max_coast`` lost frames. With
+    ``use_pred`` the given prediction (image px) wins where finite, and the radius is the
+    larger of the predicted one and the blob's own semi-major axis. gp: (gate_min_px,
+    gate_radius_factor, gate_unknown_px, gate_speed_factor).
+    """
+    for k in range(xy.shape[0]):
+        if coast[k] > max_coast:
+            cx = np.nan
+            cy = np.nan
+        else:
+            cx = xy[k, 0] + vel[k, 0] * (1 + coast[k])
+            cy = xy[k, 1] + vel[k, 1] * (1 + coast[k])
+        r = radius[k]
+        if use_pred:
+            if math.isfinite(pred_xy[k, 0]) and math.isfinite(pred_xy[k, 1]):
+                cx = pred_xy[k, 0]
+                cy = pred_xy[k, 1]
+            if math.isfinite(pred_radius[k]) and (not math.isfinite(r) or pred_radius[k] > r):
+                r = pred_radius[k]
+        centers[k, 0] = cx - ox
+        centers[k, 1] = cy - oy
+        g = max(gp[0], gp[1] * r) if math.isfinite(r) else gp[2]
+        gate[k] = g + gp[3] * math.hypot(vel[k, 0], vel[k, 1])

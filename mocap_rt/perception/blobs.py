@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from mocap_rt.perception.background import component_stats
-from mocap_rt.perception.blob_kernels import N_MOMENTS, label_and_refine, update_tracks
+from mocap_rt.perception.blob_kernels import N_MOMENTS, label_and_refine, predict_gates, update_tracks
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +72,8 @@ class BlobFrame:
 
 
 _NO_SIL = np.zeros((1, 1), np.uint8)
+_NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
+_NAN_K = np.full(8, np.nan)
 
 
 class BlobTracker:
@@ -92,11 +94,18 @@ class BlobTracker:
         self._out_area = np.zeros(K)
         self._out_contours = np.zeros((K, params.n_contour_pts, 2))
         self._has_contour = np.zeros(K, np.bool_)
+        self._all_visible = np.ones(K, np.bool_)
+        p = params
+        self._kp = np.array([p.min_area_px, p.ellipse_scale, p.n_contour_pts, p.search_frac, p.search_min_px,
+                             p.window_half_px, p.mirror_iters, p.max_refine_shift_frac, float(p.exclusive_pixels)])
+        self._kp_nomirror = self._kp.copy()
+        self._kp_nomirror[6] = 0
+        self._gate_params = np.array([p.gate_min_px, p.gate_radius_factor, p.gate_unknown_px, p.gate_speed_factor])
 
     def reset(self) -> None:
         self.__init__(self.roles, self.params)
 
-    def predict_2d(self) -> tuple[np.ndarray, np.ndarray]:
+    def predict_2d(self) -> tuple[np.ndarray, np.ndarray]:  # for callers; step uses predict_gates
         """Constant-velocity 2D prediction: (xy (K, 2) NaN where untracked, semi-major axis (K,) px)."""
         xy = self._xy + self._vel * (1 + self._coast)[:, None]
         xy[self._coast > self.params.max_coast_frames] = np.nan
@@ -122,19 +131,14 @@ class BlobTracker:
         p = self.params
         K = len(self.roles)
         ox, oy = roi_xy
-        own_xy, own_r = self.predict_2d()
-        if pred_xy is None:
-            centers, radius, visible = own_xy, own_r, np.ones(K, bool)
-        else:
-            centers = np.where(np.isfinite(pred_xy), pred_xy, own_xy)
-            # the larger of the predicted radius and the blob's own semi-major axis
-            radius = own_r if pred_radius is None else np.fmax(np.asarray(pred_radius, float), own_r)
-            visible = np.ones(K, bool) if pred_visible is None else np.asarray(pred_visible, bool)
-        centers = centers - (ox, oy)                                          # (K, 2) ROI px
-        speed = np.hypot(*self._vel.T)
-        gate = np.where(np.isfinite(radius), np.maximum(p.gate_min_px, p.gate_radius_factor * radius),
-                        p.gate_unknown_px)
-        gate = gate + p.gate_speed_factor * speed
+        centers = np.empty((K, 2))
+        gate = np.empty(K)
+        use_pred = pred_xy is not None
+        predict_gates(self._xy, self._vel, self._coast, self._radius, p.max_coast_frames,
+                      np.asarray(pred_xy, np.float64) if use_pred else _NAN_K2,
+                      np.asarray(pred_radius, np.float64) if use_pred and pred_radius is not None else _NAN_K,
+                      use_pred, float(ox), float(oy), self._gate_params, centers, gate)
+        visible = self._all_visible if pred_visible is None else np.asarray(pred_visible, np.bool_)
 
         bx, by, bw, bh = person_box_roi
         sil = sil_roi if sil_roi is not None else _NO_SIL
@@ -164,13 +168,10 @@ class BlobTracker:
 
     def _run(self, skin_roi, sil, box, centers, gate, visible, mirror) -> np.ndarray:
         p = self.params
+        kp = self._kp if mirror else self._kp_nomirror
         label_and_refine(skin_roi, sil, box[0], box[1], box[2], box[3], np.ascontiguousarray(centers, np.float64),
-                         np.ascontiguousarray(gate, np.float64), np.ascontiguousarray(visible, np.bool_),
-                         float(p.min_area_px), float(p.ellipse_scale), int(p.n_contour_pts), float(p.search_frac),
-                         float(p.search_min_px), int(p.window_half_px), int(mirror), float(p.max_refine_shift_frac),
-                         bool(p.exclusive_pixels),
-                         self._sums, self._out_xy, self._out_cov, self._out_area, self._out_contours,
-                         self._has_contour)
+                         np.ascontiguousarray(gate, np.float64), visible, kp, self._sums, self._out_xy,
+                         self._out_cov, self._out_area, self._out_contours, self._has_contour)
         return self._sums[:, 0] >= p.min_area_px
 
     # ------------------------------------------------------------------ internals
