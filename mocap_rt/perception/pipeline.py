@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import time
 import tomllib
-from dataclasses import dataclass, fields, is_dataclass, replace
+from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
 
 import cv2
@@ -63,8 +63,6 @@ class PerceptionConfig:
     torso_ridge_frac: float = DEFAULT_RIDGE_FRAC
     torso_step_px: int = 0                # distance-transform subsampling; 0 = 2 if width > 400 else 1
     background_update_rate: float = 0.0   # > 0: slow background update (per frame blend weight)
-    background_jpeg_quality: int = 0      # > 0: pass lossless backgrounds through JPEG at this
-                                          # quality first, to match JPEG/MJPG-compressed frames
     close_px: int = 0                     # > 0: morphological closing (square, this size) of the change mask
 
 
@@ -114,10 +112,7 @@ class CameraPerceiver:
                  config: PerceptionConfig = PerceptionConfig()) -> None:
         self.camera = camera
         self.config = config
-        bgs = np.asarray(backgrounds)
-        if config.background_jpeg_quality > 0:
-            bgs = np.stack([_jpeg_round_trip(b, config.background_jpeg_quality) for b in bgs.reshape(-1, *bgs.shape[-3:])])
-        self.background = BackgroundModel.from_frames(bgs)
+        self.background = BackgroundModel.from_frames(np.asarray(backgrounds))
         self._close_kernel = (cv2.getStructuringElement(cv2.MORPH_RECT, (config.close_px, config.close_px))
                               if config.close_px > 0 else None)
         w, h = self.background.size
@@ -151,7 +146,8 @@ class CameraPerceiver:
         img = np.asarray(image_bgr)
         w, h = self.background.size
         if img.shape != (h, w, 3) or img.dtype != np.uint8:
-            raise ValueError(f"camera {self.camera.name}: expected ({h}, {w}, 3) uint8 BGR, got {img.shape} {img.dtype}")
+            raise ValueError(f"camera {self.camera.name}: expected ({h}, {w}, 3) uint8 BGR, "
+                             f"got {img.shape} {img.dtype}")
         sil, box = self._silhouette(img)
         t1 = time.perf_counter()
         xy = np.full((6, 2), np.nan)
@@ -242,15 +238,3 @@ class CameraPerceiver:
         cols = np.flatnonzero(sil[0])
         x = float(cols.mean()) if cols.size else sil.shape[1] / 2.0
         return x, 0.06 * sil.shape[0]
-
-
-def _jpeg_round_trip(image_bgr: np.ndarray, quality: int) -> np.ndarray:
-    ok, buf = cv2.imencode(".jpg", image_bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise ValueError("JPEG encoding of a background frame failed")
-    return cv2.imdecode(buf, cv2.IMREAD_COLOR)
-
-
-def config_with(config: PerceptionConfig, **changes) -> PerceptionConfig:
-    """``dataclasses.replace`` for the config (convenience for CLIs and benches)."""
-    return replace(config, **changes)

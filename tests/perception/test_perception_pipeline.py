@@ -123,3 +123,18 @@ def test_perceive_cli_on_a_small_recording(tmp_path):
             for k, name in enumerate(CUE_NAMES[:5]):
                 assert np.hypot(*(z["cues_2d"][c, f, k] - frames[f][c].centres[name])) < 1.0
     assert main(["perceive", str(tmp_path / "nope"), "--out", str(tmp_path / "x.npz")]) == 2
+
+
+@pytest.mark.parametrize("changes", [{"close_px": 3}, {"background_update_rate": 0.02}, {"torso_step_px": 2}])
+def test_optional_stages_keep_the_cues(changes):
+    from dataclasses import replace
+
+    sc = make_scene(shadow=0.5)
+    image = sc.image
+    p = CameraPerceiver(CAM, sc.background, replace(PerceptionConfig(), **changes))
+    for f in range(3):
+        cues = p.process(image, f)
+    for k, name in enumerate(CUE_NAMES[:5]):
+        assert np.hypot(*(cues.xy[k] - sc.centres[name])) < 1.0, name
+    sil = p.last_silhouette
+    assert (sil & sc.mask).sum() / (sil | sc.mask).sum() > 0.97
