@@ -168,6 +168,7 @@ class Launcher:
         self.monitor: ServiceMonitor | None = None
         self.stopping = False
         self.t_sync_start: float | None = None
+        self._cpu_at_start: dict[str, float] = {}
         self.t_sync_stop: float | None = None
         self._plan()
 
@@ -313,6 +314,8 @@ class Launcher:
                     waiting.remove(name)
             self.supervise()
             time.sleep(POLL_S)
+        self._sample_cpu()
+        self._cpu_at_start = {n.name: n.cpu_s for n in self.nodes.values()}   # start-up excluded
         self._spawn(self.nodes["sync"])
         self.t_sync_start = time.monotonic()
 
@@ -418,12 +421,17 @@ class Launcher:
         trig, poses, no_pose = m.counts() if m else (0, 0, 0)
         table = m.node_table() if m else {}
         lat = percentiles(m.latencies_ms()) if m else percentiles([])
-        run_s = ((self.t_sync_stop or time.monotonic()) - self.t_sync_start) if self.t_sync_start else 0.0
+        run_s = 0.0
+        if m is not None and len(m.triggers) > 1:     # first to last trigger seen, plus a period
+            t = sorted(m.triggers.values())
+            run_s = (t[-1] - t[0]) / 1e9 + (t[-1] - t[0]) / 1e9 / (len(t) - 1)
         missing_any = sum(1 for p in m.poses if p.cameras_missing) if m else 0
         nodes = {}
         for name, n in self.nodes.items():
             st = table.get(name, {})
-            nodes[name] = {"role": n.role, "cpu_s": round(n.cpu_s, 3), "restarts": n.restarts,
+            nodes[name] = {"role": n.role, "cpu_s": round(n.cpu_s, 3),
+                           "cpu_s_running": round(n.cpu_s - self._cpu_at_start.get(name, 0.0), 3),
+                           "restarts": n.restarts,
                            "drops": st.get("drops", 0), "decode_drops": st.get("decode_drops", 0),
                            "fps": st.get("fps", 0.0), "processing_ms": st.get("processing_ms", 0.0)}
         return {
@@ -436,5 +444,6 @@ class Launcher:
             "latency_ms": {k: round(v, 3) for k, v in lat.items()},
             "cameras": list(self.rig.names),
             "cpu_s": {name: v["cpu_s"] for name, v in nodes.items()},
+            "cpu_s_running": {name: v["cpu_s_running"] for name, v in nodes.items()},
             "nodes": nodes, "log_dir": str(self.log_dir),
         }
