@@ -107,3 +107,34 @@ def test_live_fake_camera_source_is_recorded_as_a_replayable_stream(walk, tmp_pa
     diffs = [np.abs(img - src.read_frame("cam_4", k).astype(np.float32)).mean() for k in range(src.n_frames)]
     assert min(diffs) < 3.0
     assert np.isfinite(stream.timestamps).any()
+
+
+def test_launcher_plan_links_each_pair_once_on_loopback(walk, tmp_path):
+    """No processes: the plan's ports, endpoints and start-up arguments."""
+    from nodes.launcher import Launcher, RunConfig, _ephemeral_range
+
+    L = Launcher(RunConfig(rig_path=walk / "rig.toml", source=f"replay:{walk}", record=tmp_path / "r",
+                           rerun=f"save:{tmp_path / 'x.rrd'}", log_dir=tmp_path / "logs"))
+    names = list(L.nodes)
+    assert names[:3] == ["recorder", "viewer", "fusion"] and names[-1] == "sync"
+    assert [n for n in names if n.startswith("worker-")] == [f"worker-cam_{i}" for i in range(1, 7)]
+    lo, hi = _ephemeral_range()
+    ports = [n.port for n in L.nodes.values()] + [L.monitor_port]
+    assert len(set(ports)) == len(ports) and not any(lo <= p <= hi for p in ports)
+
+    def flag(argv, name):
+        return [argv[i + 1] for i, a in enumerate(argv) if a == name]
+    links = set()
+    for i, (name, node) in enumerate(L.nodes.items()):
+        listen, connect = flag(node.argv, "--listen"), flag(node.argv, "--connect")
+        assert listen == [f"tcp/127.0.0.1:{node.port}"]
+        assert all(e.startswith("tcp/127.0.0.1:") for e in connect)
+        # every node reaches the launcher's monitor and each node started before it
+        assert f"tcp/127.0.0.1:{L.monitor_port}" in connect
+        earlier = {f"tcp/127.0.0.1:{L.nodes[n].port}" for n in names[:i]}
+        assert set(connect) - {f"tcp/127.0.0.1:{L.monitor_port}"} == earlier
+        links |= {frozenset((name, n)) for n in names[:i]}
+    assert len(links) == len(names) * (len(names) - 1) // 2          # a full mesh, each link once
+    sync = L.nodes["sync"].argv
+    assert flag(sync, "--expect-peers") == [str(len(names))]          # the other nodes + monitor
+    assert flag(sync, "--frames") == [str(Recording(walk).n_frames)]  # one pass of the replay
