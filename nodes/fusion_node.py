@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 DEFAULT_DEADLINE_FRAC = 0.8     # of the frame period, after the trigger
 FREE_RUN_DEADLINE_S = 0.1       # deadline when the sync free-runs (period 0)
 LIVENESS_S = 0.25               # a camera silent this long is not waited for
+FIRST_FRAME_GRACE_S = 0.5       # the very first frame waits this long for every camera: the
+                                # tracker initialises from it (fewer views can start it badly)
 MAX_PENDING_FRAMES = 64         # frames gathered at once (older ones are dropped)
 
 
@@ -66,8 +68,12 @@ class FrameGatherer:
 
     def _deadline(self, t_trigger_ns: int) -> int:
         if self.period_ns > 0:
-            return t_trigger_ns + int(self.deadline_frac * self.period_ns)
-        return t_trigger_ns + int(FREE_RUN_DEADLINE_S * 1e9)
+            wait_ns = int(self.deadline_frac * self.period_ns)
+        else:
+            wait_ns = int(FREE_RUN_DEADLINE_S * 1e9)
+        if self.last_done < 0:            # nothing fused yet: the first frame
+            wait_ns = max(wait_ns, int(FIRST_FRAME_GRACE_S * 1e9))
+        return t_trigger_ns + wait_ns
 
     def _get(self, frame: int, t_trigger_ns: int) -> PendingFrame | None:
         if frame <= self.last_done:

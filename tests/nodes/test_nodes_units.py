@@ -321,3 +321,16 @@ def test_gatherer_fuses_an_older_partial_frame_before_a_newer_complete_one():
     assert g.ready(200 * MS) == [] and g.next_deadline_ns() is None
     g.on_cues(_cues("b", 7, 80 * MS), 201 * MS)
     assert [pf.frame for pf in g.ready(201 * MS)] == [7]
+
+
+def test_gatherer_first_frame_has_a_grace_period():
+    from nodes.fusion_node import FIRST_FRAME_GRACE_S
+    g = FrameGatherer(["a", "b"], deadline_frac=0.5, liveness_s=2.0)
+    g.on_trigger(Trigger("r", 0, 0, 0, 40 * MS), now_ns=0)
+    g.on_cues(_cues("a", 0, 0), 1 * MS)
+    assert g.ready(30 * MS) == []                                   # past the usual 20 ms deadline
+    assert g.next_deadline_ns() == int(FIRST_FRAME_GRACE_S * 1e9)
+    g.on_cues(_cues("b", 0, 0), 45 * MS)                             # a slow first frame of b
+    assert set(g.ready(45 * MS)[0].cues) == {"a", "b"}
+    g.on_trigger(Trigger("r", 1, 40 * MS, 0, 40 * MS), now_ns=40 * MS)
+    assert g.pending[1].deadline_ns == 40 * MS + 20 * MS             # later frames: the usual deadline
