@@ -143,8 +143,11 @@ class RawStream:
                 images.append(m.image if ok else np.zeros((cam.height, cam.width, 3), np.uint8))
                 stamps.append(m.t_grab_wall_ns / 1e9 if ok else float("nan"))
             self.frames_incomplete += len(got) < len(names)
-            self.writer.write_frame(f, images, stamps)
-            self.frames_written += 1
+            try:
+                self.writer.write_frame(f, images, stamps)
+                self.frames_written += 1
+            except ValueError as exc:      # a bad frame must not end the recording
+                log.warning("recorder: stream frame %d not written: %s", f, exc)
             self.last_written = f
             del self.pending[f], self.first_seen[f]
 
@@ -246,12 +249,15 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
                 msg = inbox.get_nowait()
             except queue.Empty:
                 break
-            if isinstance(msg, Pose) and msg.frame > last_frame:
-                poses.add(msg)
-                bvh.write(msg.bvh_frame)
-                last_frame = msg.frame
-            elif isinstance(msg, Frame) and stream is not None:
-                stream.on_frame(msg, time.monotonic())
+            try:
+                if isinstance(msg, Pose) and msg.frame > last_frame:
+                    poses.add(msg)
+                    bvh.write(msg.bvh_frame)
+                    last_frame = msg.frame
+                elif isinstance(msg, Frame) and stream is not None:
+                    stream.on_frame(msg, time.monotonic())
+            except ValueError as exc:
+                log.warning("recorder: last message not written: %s", exc)
         poses.snapshot()
         bvh.close()
         if stream is not None:
