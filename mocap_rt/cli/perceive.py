@@ -67,13 +67,12 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from mocap_rt.io.recording import Recording
-    from mocap_rt.perception.pipeline import PerceptionConfig, load_perception_config
+    from mocap_rt.perception.pipeline import PerceptionConfig, config_for_source, load_perception_config
 
     config = load_perception_config(args.config) if args.config else PerceptionConfig()
     with Recording(args.recording) as rec:
         if args.skin_model == "auto":
-            if rec.source == "studio" and not config.skin_model_path:
-                config = replace(config, skin_model_path="studio_skin")
+            config = config_for_source(config, rec.source)
         else:
             config = replace(config, skin_model_path=args.skin_model)
         cameras = list(args.cameras) if args.cameras else list(rec.camera_names)

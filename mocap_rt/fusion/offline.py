@@ -111,9 +111,9 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
         def frame_cues(i, predictions):
             return int(frames_idx[i]), truth_camera_cues(truth, names, int(tidx[i]), int(frames_idx[i]), noise_px, rng)
     else:
-        from mocap_rt.perception.pipeline import CameraPerceiver, PerceptionConfig
+        from mocap_rt.perception.pipeline import CameraPerceiver, PerceptionConfig, config_for_source
 
-        pc = perception_config or PerceptionConfig()
+        pc = perception_config or config_for_source(PerceptionConfig(), rec.source)
         perceivers = {nm: CameraPerceiver(rec.rig[nm], rec.backgrounds(nm), pc) for nm in names}
         iters = {nm: rec.iter_frames(nm) for nm in names}
 

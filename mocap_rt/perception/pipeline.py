@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import time
 import tomllib
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -99,6 +99,18 @@ def load_perception_config(path: str | Path) -> PerceptionConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML: {exc}") from None
     return _from_table(PerceptionConfig, doc.get("perception", doc), str(path))
+
+
+def config_for_source(config: PerceptionConfig, source: str) -> PerceptionConfig:
+    """The config to use on a recording of the given ``source`` ("studio", "live", ...).
+
+    Studio skin keeps one chromaticity under shading, while the real-skin (UCI) default
+    model makes darker skin redder and accepts only ~60 % of studio skin pixels; so a
+    studio recording gets the studio-fitted skin model unless one was chosen explicitly.
+    """
+    if source == "studio" and not config.skin_model_path:
+        return replace(config, skin_model_path="studio_skin")
+    return config
 
 
 class CameraPerceiver:
