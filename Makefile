@@ -6,9 +6,14 @@ STAMP   := $(VENV)/.installed
 DATA    ?= ../shared/data
 DEMO_DIR ?= out/demo
 
-.PHONY: setup demo test test-fast bench clean
+.PHONY: setup system-deps demo test test-fast bench clean
 
 setup: $(STAMP)
+
+# Debian packages the tests need: chromium (the web viewer test), iproute2 (network namespaces).
+system-deps:
+	@command -v chromium >/dev/null 2>&1 && command -v ip >/dev/null 2>&1 || { \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium iproute2; }
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -19,7 +24,7 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
 
-test: setup
+test: setup system-deps
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q
 
 test-fast: setup

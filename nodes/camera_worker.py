@@ -79,14 +79,13 @@ class PredictionBox:
             return self._by_frame.get(frame)
 
 
-def make_perceiver(camera, backgrounds, config_path=None):
-    """C's ``CameraPerceiver`` with the default (or given) perception config."""
+def make_perceiver(camera, backgrounds, config_path=None, origin: str = "live"):
+    """``CameraPerceiver`` with the given (or default) config, adapted to where the frames
+    come from (``origin``: a recording's source such as "studio", or "live")."""
     from mocap_rt.perception import pipeline
 
-    if config_path is not None:
-        config = pipeline.load_perception_config(config_path)
-        return pipeline.CameraPerceiver(camera, backgrounds, config)
-    return pipeline.CameraPerceiver(camera, backgrounds)
+    config = pipeline.load_perception_config(config_path) if config_path is not None else pipeline.PerceptionConfig()
+    return pipeline.CameraPerceiver(camera, backgrounds, pipeline.config_for_source(config, origin))
 
 
 def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
@@ -200,10 +199,10 @@ def main(argv: list[str] | None = None) -> int:
         rt.publish_status("starting", force=True)
         try:
             backgrounds = source.backgrounds()
-            perceiver = make_perceiver(camera, backgrounds, args.perception_config)
+            perceiver = make_perceiver(camera, backgrounds, args.perception_config, source.origin)
             # warm-up (JIT, caches, the replay's first video segment) on a throw-away
             # perceiver, so the first triggered frame is as fast as any other
-            warm = make_perceiver(camera, backgrounds, args.perception_config)
+            warm = make_perceiver(camera, backgrounds, args.perception_config, source.origin)
             warm.process(source.grab(0).image if not source.live else backgrounds[0], 0, None)
             source.prefetch(0)          # the first trigger's image is ready (no seek back)
             if args.publish_frames and source.live:

@@ -157,6 +157,7 @@ class ReplaySource:
                              f"(has {list(self.recording.camera_names)})")
         self.camera = camera
         self.n_frames = int(self.recording.n_frames)
+        self.origin = self.recording.source  # what made the frames: "studio", "live", ...
         if self.n_frames <= 0:
             raise ValueError(f"recording {rec_dir} has no frames")
         self._next: tuple[int, np.ndarray] | None = None
@@ -192,8 +193,9 @@ class LiveSource:
     live = True
 
     def __init__(self, device: Device, camera: str, n_backgrounds: int = LIVE_BACKGROUND_FRAMES,
-                 backgrounds_fn: Callable[[], np.ndarray] | None = None) -> None:
+                 backgrounds_fn: Callable[[], np.ndarray] | None = None, origin: str = "live") -> None:
         self.camera = camera
+        self.origin = origin
         self._backgrounds_fn = backgrounds_fn
         self.grabber = Grabber(device, name=f"grab-{camera}")
         self._n_backgrounds = n_backgrounds
@@ -261,4 +263,5 @@ def open_source(spec: str, camera, fps: float = 30.0):
     rep = ReplaySource(Path(value), camera.name)
     dev = FakeDevice(lambda i: rep.recording.read_frame(camera.name, i % rep.n_frames),
                      float(rep.recording.fps))
-    return LiveSource(dev, camera.name, backgrounds_fn=lambda: rep.recording.backgrounds(camera.name))
+    return LiveSource(dev, camera.name, backgrounds_fn=lambda: rep.recording.backgrounds(camera.name),
+                      origin=rep.origin)

@@ -1,7 +1,6 @@
 """``--rerun serve``: the web viewer on 127.0.0.1 shows the running service in headless Chromium."""
 
 import shutil
-import subprocess
 
 import cv2
 import numpy as np
@@ -20,14 +19,9 @@ PREVIEW_EVERY = 6         # fewer images: the software-rendered browser keeps up
 
 @pytest.fixture(scope="module")
 def chromium() -> str:
-    """Debian's chromium; installed here when missing (CI images start without it)."""
+    """Debian's chromium, installed by `make system-deps` (which `make test` runs)."""
     exe = shutil.which("chromium")
-    if exe is None:
-        proc = subprocess.run(["apt-get", "install", "-y", "--no-install-recommends", "chromium"],
-                              capture_output=True, text=True, timeout=900,
-                              env={"DEBIAN_FRONTEND": "noninteractive", "PATH": "/usr/sbin:/usr/bin:/sbin:/bin"})
-        exe = shutil.which("chromium")
-        assert exe, f"chromium could not be installed: {proc.stderr[-2000:]}"
+    assert exe, "chromium is missing: run `make system-deps` (Debian package chromium)"
     return exe
 
 
