@@ -117,3 +117,8 @@ class CueFilter:
             coasting = self.alive & ~accepted
             self.vel[coasting] *= np.exp(-dt_step / cfg.coast_velocity_decay_s)
         return accepted
+
+    def swap(self, a: int, b: int) -> None:
+        """Exchange the whole state of tracks ``a`` and ``b`` (an identity fix, e.g. left/right)."""
+        for arr in (self.pos, self.vel, self.cov, self.alive, self.last_update_s, self.last_meas):
+            arr[[a, b]] = arr[[b, a]]

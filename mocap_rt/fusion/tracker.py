@@ -41,7 +41,7 @@ from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BoneLengths, body_model
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, frontal_pair, predict_views,
+from mocap_rt.fusion.views import (CUE_RADII_M, LR_PAIRS, RigProjector, fix_left_right, frontal_pair, predict_views,
                                    triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
@@ -83,6 +83,9 @@ class FusionConfig:
     bone_lengths: BoneLengths | None = None
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
+    side_walk_speed_mps: float = 0.5       # walking-side identity check (``_check_sides``) above this torso speed:
+    side_margin_m: float = 0.02            # a hand/foot pair whose left one lies this far on the walk's right ...
+    side_frames: int = 4                   # ... this many more frames than on the right side is swapped (0 = off)
     filter: FilterConfig = field(default_factory=FilterConfig)
     analytic: AnalyticConfig = field(default_factory=AnalyticConfig)
     ccd: CcdConfig = field(default_factory=lambda: CcdConfig(angle_tolerance_deg=20.0, max_iterations=30))
@@ -166,6 +169,8 @@ class BodyTracker:
         self._vel: np.ndarray | None = None
         self._swivel = np.zeros(4)   # elbow/knee pole swivels (analytic.refine_swivel)
         self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
+        self._side_votes = np.zeros(len(LR_PAIRS), dtype=np.int64)
+        self.side_swaps = 0   # left/right track swaps made by the walking-side check so far
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
@@ -315,6 +320,7 @@ class BodyTracker:
         valid = np.isfinite(X).all(axis=1)
         X = self._reject_duplicates(X, valid, t_s)
         valid = np.isfinite(X).all(axis=1)
+        X = self._check_sides(X, valid)
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
         valid &= accepted
         filt = np.where(self.filter.alive[:, None], self.filter.pos, np.nan)
@@ -347,6 +353,48 @@ class BodyTracker:
         pair = tuple(self._names[i] for i in self._pair) if (self.config.views == "pair" and self._pair) else ()
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
                             root, angles, pan, pair, cues_ik, axes, joint_valid)
+
+    def _check_sides(self, X: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """Left/right identity of hands and feet from the walking direction.
+
+        ``fix_left_right`` makes the views agree, but the whole body can still be mirrored:
+        a symmetric body seen from a ring looks the same with left and right exchanged and
+        the facing reversed, and at a cold start the labels come from perception's
+        "facing the camera" convention, right in the views in front of the person and wrong
+        in those behind. Walking breaks the symmetry: people face where they walk, so the
+        left hand/foot lies left of the torso's horizontal velocity (up x heading), across
+        the track (hands ~0.3 m apart, feet ~0.05-0.2 m; the along-track swing does not
+        enter). A pair measured on the wrong side by more than ``side_margin_m`` in
+        ``side_frames`` more frames than on the right side (a vote that a frame on the right
+        side lowers by one) while the torso moves faster than
+        ``side_walk_speed_mps`` is swapped, measurement and filter tracks, so the next
+        prediction (and with it perception's labelling) follows. Returns X (6, 3), possibly
+        with rows exchanged.
+        """
+        cfg = self.config
+        if cfg.side_frames <= 0 or self._vel is None:
+            return X
+        v = self._vel                                         # smoothed: a noisy heading leaks the
+        speed = float(np.hypot(v[0], v[1]))
+        if not speed >= cfg.side_walk_speed_mps:
+            return X
+        left = np.array([-v[1], v[0], 0.0]) / speed          # steps' along-track length into "across"
+        for k, (a, b) in enumerate(LR_PAIRS):
+            if not (valid[a] and valid[b]):
+                continue
+            side = float((X[a] - X[b]) @ left)
+            if side < -cfg.side_margin_m:
+                self._side_votes[k] += 1
+            elif side > cfg.side_margin_m:
+                self._side_votes[k] = max(0, self._side_votes[k] - 1)
+            if self._side_votes[k] >= cfg.side_frames:
+                X = X.copy()
+                X[[a, b]] = X[[b, a]]
+                self.filter.swap(a, b)
+                self._side_votes[k] = 0
+                self.side_swaps += 1
+                log.info("left/right %s and %s swapped: on the wrong side of the walk", CUE_NAMES[a], CUE_NAMES[b])
+        return X
 
     def _reject_duplicates(self, X: np.ndarray, valid: np.ndarray, t_s: float) -> np.ndarray:
         """Drop a hand/foot measured on top of the head unless it was predicted there.
