@@ -27,7 +27,9 @@ SUBCOMMANDS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mocap-rt", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="mocap-rt", description="Real-time marker-free multi-camera human motion capture; "
+        "every subcommand has --help.")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in SUBCOMMANDS:
