@@ -65,6 +65,34 @@ def _row(label: str, s: dict) -> str:
             f"{lat['p99']:6.1f} | {s['achieved_fps']:6.1f} | {cpu} |")
 
 
+STAGES = (("w_perceive_max", "perception of the slowest camera (duration)"),
+          ("w_perceive_sum", "perception summed over the cameras (CPU demand)"),
+          ("w_cpu_min", "CPU of the fastest camera's grab+perceive (duration)"),
+          ("w_cpu", "CPU of the slowest camera's grab+perceive (duration)"),
+          ("w_recv_min", "trigger received by the first worker"),
+          ("w_recv", "trigger received by the slowest worker"),
+          ("w_start", "its processing started"),
+          ("w_pub_min", "first cues published"),
+          ("w_pub", "last cues published"),
+          ("f_last_cue", "last cues received by fusion"),
+          ("f_ready", "fusion started (frame complete)"),
+          ("step_ms", "BodyTracker.step (duration)"),
+          ("predict_ms", "BodyTracker.predict (duration)"),
+          ("pred_pub_ms", "6 predictions published (duration)"))
+
+
+def stage_table(s: dict) -> str:
+    """Where the latency of one run went: ms after the trigger (or a duration), p50 / p99."""
+    st = s.get("stages_ms", {})
+    lines = ["| stage (ms after trigger unless noted) | p50 | p99 |", "|---|---|---|"]
+    for key, label in STAGES:
+        if key in st:
+            lines.append(f"| {label} | {st[key]['p50']:.2f} | {st[key]['p99']:.2f} |")
+    lat = s["latency_ms"]
+    lines.append(f"| pose published (= latency) | {lat['p50']:.2f} | {lat['p99']:.2f} |")
+    return "\n".join(lines)
+
+
 HEADER = ("| rate      |  run s |  trig. |  poses | lost | skip |    p50 |    p95 |    p99 |  pose/s | CPU s per s, by role |\n"
           "|-----------|--------|--------|--------|------|------|--------|--------|--------|---------|----------------------|")
 
@@ -88,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     results["30fps"] = s = run_once(rec, TARGET_FPS, args.duration, logs / "30", args.nice)
     print(_row("30 fps", s), flush=True)
+    print(stage_table(s) + "\n", flush=True)
     results["60fps"] = s = run_once(rec, 60.0, args.duration_60, logs / "60", args.nice)
     print(_row("60 fps", s), flush=True)
     best = TARGET_FPS if results["30fps"]["lost"] == 0 else 0.0

@@ -20,7 +20,7 @@ import threading
 import time
 
 from nodes.messages import Background, Cues, Frame, Keys, Prediction, Preview, Trigger
-from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
+from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, setup_logging
 from nodes.transport import open_session
 
 log = logging.getLogger(__name__)
@@ -37,13 +37,15 @@ class TriggerSlot:
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._trigger: Trigger | None = None
+        self._recv_ns = 0
+        self.taken_recv_ns = 0      # when the last taken trigger arrived (monotonic ns)
         self.overwritten = 0
 
-    def put(self, trig: Trigger) -> None:
+    def put(self, trig: Trigger, recv_ns: int = 0) -> None:
         with self._cond:
             if self._trigger is not None:
                 self.overwritten += 1
-            self._trigger = trig
+            self._trigger, self._recv_ns = trig, recv_ns
             self._cond.notify()
 
     def take(self, timeout_s: float) -> Trigger | None:
@@ -52,6 +54,8 @@ class TriggerSlot:
             if self._trigger is None:
                 self._cond.wait(timeout_s)
             trig, self._trigger = self._trigger, None
+            if trig is not None:
+                self.taken_recv_ns = self._recv_ns
             return trig
 
     def poke(self) -> None:
@@ -97,9 +101,10 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
     slot, preds = TriggerSlot(), PredictionBox()
 
     def on_trigger(sample) -> None:
+        recv_ns = time.monotonic_ns()
         trig = rt.decoder.decode(sample.payload, Trigger)
         if trig is not None:
-            slot.put(trig)
+            slot.put(trig, recv_ns)
 
     def on_prediction(sample) -> None:
         msg = rt.decoder.decode(sample.payload, Prediction)
@@ -113,6 +118,8 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
     subs = [session.declare_subscriber(keys.trigger, on_trigger),
             session.declare_subscriber(keys.prediction(name), on_prediction)]
     rt.publish_status("running", force=True)
+    gcs = IdleGC()
+    gcs.start()
     used_pred = 0
     deferred = None      # (frame, grab, not-after monotonic s): work kept off the critical path
 
@@ -127,10 +134,12 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             ok, jpg = cv2.imencode(".jpg", grab.image, [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_JPEG_QUALITY])
             if ok:
                 preview_pub.put(Preview(keys.rig, name, frame, jpg.tobytes()).to_msgpack())
+        c0 = time.thread_time()
         try:
             source.prefetch(frame + 1)
         except (OSError, ValueError) as exc:
             log.warning("%s: prefetch of frame %d failed: %s", name, frame + 1, exc)
+        rt.extra["prefetch_cpu_ms"] = (time.thread_time() - c0) * 1e3
 
     try:
         while not rt.stop.is_set():
@@ -142,9 +151,11 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
                 do_deferred()
                 deferred = None
             if trig is None:
+                gcs.idle()               # between frames: the next trigger is not here yet
                 rt.publish_status()
                 continue
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
+            t_start_ns = time.monotonic_ns()
             try:
                 grab = source.grab(trig.frame)
             except (TimeoutError, OSError, ValueError) as exc:
@@ -155,12 +166,19 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             used_pred += pred is not None
             cues = perceiver.process(grab.image, trig.frame, pred)
             work_ms = (time.perf_counter() - t0) * 1e3
+            # where this frame's time went, ms after the trigger (fusion forwards the
+            # slowest camera's in the pose's timings)
+            cues.timings_ms.update(w_recv=(slot.taken_recv_ns - trig.t_mono_ns) / 1e6,
+                                   w_start=(t_start_ns - trig.t_mono_ns) / 1e6,
+                                   w_pub=(time.monotonic_ns() - trig.t_mono_ns) / 1e6,
+                                   w_cpu=(time.thread_time() - c0) * 1e3)
             cues_pub.put(Cues(keys.rig, cues, trig.t_mono_ns, grab.t_mono_ns, work_ms).to_msgpack())
             rt.meter.add(work_ms)
             rt.extra["predictions_used"] = used_pred
             deferred = (trig.frame, grab, time.monotonic() + DEFER_FRACTION * trig.period_ns / 1e9)
             rt.publish_status()
     finally:
+        gcs.stop()
         for s in subs:
             s.undeclare()
 

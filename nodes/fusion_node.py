@@ -3,9 +3,9 @@
 Seed digest A.6 (the PC that does 3D reconstruction and motion generation). For frame ``k``
 the node waits until every *live* camera answered or the deadline
 ``t_trigger + deadline_frac * period`` passed, whichever is first, then calls
-``BodyTracker.step`` with the cameras it has, publishes the next frame's ``CuePrediction``
-for every camera (first, so workers have it before the next trigger) and then the ``Pose``,
-which names the cameras used and the cameras missing. A camera is live when its cues arrived
+``BodyTracker.step`` with the cameras it has and publishes the ``Pose`` (which names the
+cameras used and the cameras missing), then the next frame's ``CuePrediction`` for every
+camera (a period before the next trigger; when free-running, predictions go first). A camera is live when its cues arrived
 within ``LIVENESS_S``; a killed worker therefore costs at most a deadline on a few frames,
 and a restarted one is counted again with its first answer.
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nodes.messages import Cues, Keys, Pose, Prediction, Trigger
-from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
+from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, setup_logging
 from nodes.transport import open_session
 
 log = logging.getLogger(__name__)
@@ -45,6 +45,7 @@ class PendingFrame:
     deadline_ns: int
     cues: dict = field(default_factory=dict)       # camera -> CameraCues
     t_first_ns: int = 0
+    t_last_ns: int = 0                             # when the last answer arrived
 
 
 class FrameGatherer:
@@ -106,6 +107,7 @@ class FrameGatherer:
             return
         pf.cues[msg.camera] = msg.cues
         pf.t_first_ns = pf.t_first_ns or now_ns
+        pf.t_last_ns = max(pf.t_last_ns, now_ns)
 
     def assume_all_live(self, now_ns: int) -> None:
         """Every rig camera not heard of yet counts as live from ``now_ns`` (done at the first
@@ -176,35 +178,87 @@ def warm_up(rig, fps: float = 30.0) -> float:
     return time.perf_counter() - t0
 
 
+def stage_timings(pf: PendingFrame, t_ready_ns: int) -> dict[str, float]:
+    """The critical path of one frame, ms after its trigger: the slowest camera's trigger
+    receipt / processing start / cues publication (``w_*``), the last answer's arrival here
+    (``f_last_cue``) and the start of fusion (``f_ready``)."""
+    out: dict[str, float] = {}
+    for key in ("w_recv", "w_start", "w_pub", "w_cpu"):
+        vals = [float(c.timings_ms[key]) for c in pf.cues.values() if key in c.timings_ms]
+        if vals:
+            out[key] = max(vals)
+            out[key + "_min"] = min(vals)
+    # perception time (wall, incl. preemption) of the frame, summed over the cameras and the slowest
+    work = [float(c.timings_ms["total"]) for c in pf.cues.values() if "total" in c.timings_ms]
+    if work:
+        out["w_perceive_sum"] = sum(work)
+        out["w_perceive_max"] = max(work)
+    if pf.t_last_ns:
+        out["f_last_cue"] = (pf.t_last_ns - pf.t_trigger_mono_ns) / 1e6
+    out["f_ready"] = (t_ready_ns - pf.t_trigger_mono_ns) / 1e6
+    return out
+
+
 def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[str], pred_pubs: dict,
-                     pose_pub, rt: NodeRuntime) -> Pose | None:
-    """Step the tracker on one gathered frame, publish predictions then the pose."""
+                     pose_pub, rt: NodeRuntime, pose_first: bool = True) -> Pose | None:
+    """Step the tracker on one gathered frame and publish the pose and the next frame's
+    predictions.
+
+    ``pose_first`` (triggered rates): the pose goes out right after ``step``, then
+    ``predict`` and the predictions; the next trigger is a period away, so the workers still
+    have them in time, and the work the predictions release in the workers (their deferred
+    decode) cannot preempt the pose. Free-running (the sync triggers on the pose): the
+    predictions go first, else the next trigger could overtake them.
+    """
+    t_ready_ns = time.monotonic_ns()
     t0 = time.perf_counter()
     try:
         result = tracker.step(pf.frame, pf.cues)
         t1 = time.perf_counter()
-        predictions = tracker.predict(pf.frame + 1)
+        predictions = None if pose_first else tracker.predict(pf.frame + 1)
     except Exception as exc:  # a fusion failure on one frame must not end the service
         log.exception("fusion: frame %d failed: %s", pf.frame, exc)
         rt.extra["fusion_errors"] = rt.extra.get("fusion_errors", 0) + 1
         return None
     t2 = time.perf_counter()
-    for cam, pred in predictions.items():
-        pub = pred_pubs.get(cam)
-        if pub is not None:
-            pub.put(Prediction(keys.rig, pred).to_msgpack())
+    if predictions is not None:
+        publish_predictions(keys, predictions, pred_pubs)
+    t3 = time.perf_counter()
     used = tuple(c for c in rig_cameras if c in pf.cues)
     missing = tuple(c for c in rig_cameras if c not in pf.cues)
-    timings = {"step_ms": (t1 - t0) * 1e3, "predict_ms": (t2 - t1) * 1e3,
-               "gather_ms": (time.monotonic_ns() - pf.t_trigger_mono_ns) / 1e6 - (t2 - t0) * 1e3}
+    timings = {"step_ms": (t1 - t0) * 1e3, "gather_ms": (t_ready_ns - pf.t_trigger_mono_ns) / 1e6}
+    if predictions is not None:
+        timings.update(predict_ms=(t2 - t1) * 1e3, pred_pub_ms=(t3 - t2) * 1e3)
+    timings.update(stage_timings(pf, t_ready_ns))
     timings.update({f"lib_{k}": float(v) for k, v in dict(getattr(result, "timings_ms", {})).items()})
     pose = Pose(keys.rig, pf.frame, pf.t_trigger_mono_ns, time.monotonic_ns(),
                 np.asarray(result.cues_3d, np.float64), np.asarray(result.cue_valid, bool),
                 np.asarray(result.joints, np.float64), np.asarray(result.bvh_frame, np.float64),
                 used, missing, timings)
     pose_pub.put(pose.to_msgpack())
+    if predictions is None:
+        t4 = time.perf_counter()
+        try:
+            predictions = tracker.predict(pf.frame + 1)
+        except Exception as exc:  # noqa: BLE001 - as above: count, log, carry on
+            log.exception("fusion: prediction for frame %d failed: %s", pf.frame + 1, exc)
+            rt.extra["fusion_errors"] = rt.extra.get("fusion_errors", 0) + 1
+            predictions = {}
+        t5 = time.perf_counter()
+        publish_predictions(keys, predictions, pred_pubs)
+        rt.extra["predict_ms"] = (t5 - t4) * 1e3
+        rt.extra["pred_pub_ms"] = (time.perf_counter() - t5) * 1e3
+        t2 += t5 - t4
     rt.meter.add((t2 - t0) * 1e3)
     return pose
+
+
+def publish_predictions(keys: Keys, predictions: dict, pred_pubs: dict) -> None:
+    """One ``Prediction`` per camera that has a publisher."""
+    for cam, pred in predictions.items():
+        pub = pred_pubs.get(cam)
+        if pub is not None:
+            pub.put(Prediction(keys.rig, pred).to_msgpack())
 
 
 def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
@@ -215,20 +269,24 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
     inbox: queue.SimpleQueue = queue.SimpleQueue()
 
     def on_trigger(sample) -> None:
+        recv_ns = time.monotonic_ns()
         msg = rt.decoder.decode(sample.payload, Trigger)
         if msg is not None:
-            inbox.put(msg)
+            inbox.put((msg, recv_ns))
 
     def on_cues(sample) -> None:
+        recv_ns = time.monotonic_ns()
         msg = rt.decoder.decode(sample.payload, Cues)
         if msg is not None:
-            inbox.put(msg)
+            inbox.put((msg, recv_ns))
 
     pose_pub = session.declare_publisher(keys.pose, express=True)
     pred_pubs = {c: session.declare_publisher(keys.prediction(c), express=True) for c in rig_cameras}
     subs = [session.declare_subscriber(keys.trigger, on_trigger),
             session.declare_subscriber(keys.cues(), on_cues)]
     rt.publish_status("running", force=True)
+    gcs = IdleGC()
+    gcs.start()
     try:
         while not rt.stop.is_set():
             now = time.monotonic_ns()
@@ -239,21 +297,28 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
             except queue.Empty:
                 msg = None
             while msg is not None:
+                msg, recv_ns = msg
                 if isinstance(msg, Trigger):
-                    gather.on_trigger(msg, time.monotonic_ns())
+                    gather.on_trigger(msg, recv_ns)
                 else:
-                    gather.on_cues(msg, time.monotonic_ns())
+                    gather.on_cues(msg, recv_ns)
                 try:
                     msg = inbox.get_nowait()
                 except queue.Empty:
                     msg = None
+            fused = 0
             for pf in gather.ready(time.monotonic_ns()):
-                fuse_and_publish(tracker, keys, pf, rig_cameras, pred_pubs, pose_pub, rt)
+                fuse_and_publish(tracker, keys, pf, rig_cameras, pred_pubs, pose_pub, rt,
+                                 pose_first=gather.period_ns > 0)
+                fused += 1
+            if fused and not any(pf.cues for pf in gather.pending.values()):
+                gcs.idle()           # published, and no answers for a later frame yet
             rt.drops = gather.frames_dropped + int(rt.extra.get("fusion_errors", 0))
             rt.extra["late_cues"] = gather.late_cues
             rt.extra["cameras_live"] = len(gather.live(time.monotonic_ns()))
             rt.publish_status()
     finally:
+        gcs.stop()
         for s in subs:
             s.undeclare()
 

@@ -442,6 +442,8 @@ class Launcher:
             "decode_drops": sum(v["decode_drops"] for v in nodes.values()) + (m.decoder.total_drops if m else 0),
             "poses_with_missing_cameras": missing_any,
             "latency_ms": {k: round(v, 3) for k, v in lat.items()},
+            "stages_ms": ({k: {q: round(v, 3) for q, v in d.items()} for k, d in m.stage_percentiles().items()}
+                          if m else {}),
             "cameras": list(self.rig.names),
             "cpu_s": {name: v["cpu_s"] for name, v in nodes.items()},
             "cpu_s_running": {name: v["cpu_s_running"] for name, v in nodes.items()},

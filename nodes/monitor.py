@@ -9,7 +9,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,6 +29,7 @@ class PoseEvent:
     t_recv_ns: int
     cameras_used: tuple[str, ...]
     cameras_missing: tuple[str, ...]
+    timings_ms: dict = field(default_factory=dict)   # the pose's stage timings
 
     @property
     def latency_ms(self) -> float:
@@ -71,7 +72,8 @@ class ServiceMonitor:
         now = time.monotonic_ns()
         m = self.decoder.decode(sample.payload, Pose)
         if m is not None:
-            ev = PoseEvent(m.frame, m.t_trigger_mono_ns, m.t_pub_mono_ns, now, m.cameras_used, m.cameras_missing)
+            ev = PoseEvent(m.frame, m.t_trigger_mono_ns, m.t_pub_mono_ns, now, m.cameras_used, m.cameras_missing,
+                           dict(m.timings_ms))
             with self._lock:
                 self.poses.append(ev)
                 self.pose_frames.add(m.frame)
@@ -117,6 +119,16 @@ class ServiceMonitor:
         with self._lock:
             ps = list(self.poses)[-last:] if last else list(self.poses)
         return [p.latency_ms for p in ps]
+
+    def stage_percentiles(self) -> dict[str, dict[str, float]]:
+        """Per pose-timing key (``w_pub``, ``f_last_cue``, ``step_ms`` ...): p50/p95/p99/max/mean
+        over the poses seen, ms; plus ``recv`` (pose published -> received here)."""
+        with self._lock:
+            ps = list(self.poses)
+        keys = sorted({k for p in ps for k in p.timings_ms})
+        out = {k: percentiles(p.timings_ms[k] for p in ps if k in p.timings_ms) for k in keys}
+        out["recv"] = percentiles((p.t_recv_ns - p.t_pub_ns) / 1e6 for p in ps)
+        return out
 
     def node_table(self) -> dict[str, dict]:
         with self._lock:

@@ -8,6 +8,7 @@ counters and the once-a-second ``Status`` message.
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import os
 import re
@@ -138,3 +139,45 @@ class NodeRuntime:
         th = threading.Thread(target=run, name=f"{self.node}-status", daemon=True)
         th.start()
         return th
+
+
+class IdleGC:
+    """Garbage collection only when the node is idle, never in the middle of a frame.
+
+    ``start()`` (after warm-up): ``gc.freeze()`` moves everything alive so far (modules,
+    JIT caches, the rig) out of the collector's view, and ``gc.disable()`` stops the automatic
+    collections, whose pauses (a full one takes ms) land at random points of the critical
+    path. ``idle()`` is called where the node has nothing to do (a frame published, the next
+    trigger not yet due): it collects the young generations once enough objects were
+    allocated, and everything every ``FULL_EVERY_S``. ``stop()`` restores automatic collection.
+    """
+
+    YOUNG_THRESHOLD = 700        # allocations (gc's own default gen-0 threshold)
+    FULL_EVERY_S = 10.0
+
+    def __init__(self) -> None:
+        self.collections = 0
+        self._last_full = time.monotonic()
+        self._was_enabled = False
+
+    def start(self) -> None:
+        self._was_enabled = gc.isenabled()
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        self._last_full = time.monotonic()
+
+    def idle(self) -> None:
+        now = time.monotonic()
+        if now - self._last_full >= self.FULL_EVERY_S:
+            gc.collect()
+            self._last_full = now
+            self.collections += 1
+        elif gc.get_count()[0] >= self.YOUNG_THRESHOLD:
+            gc.collect(1)
+            self.collections += 1
+
+    def stop(self) -> None:
+        gc.unfreeze()
+        if self._was_enabled:
+            gc.enable()

@@ -18,7 +18,7 @@ import threading
 import time
 
 from nodes.messages import Keys, Pose, Trigger
-from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
+from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, setup_logging
 from nodes.transport import open_session
 
 log = logging.getLogger(__name__)
@@ -77,6 +77,8 @@ def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame:
     """Publish triggers until ``n_frames`` were sent or ``rt.stop`` is set; returns frames sent."""
     pub = session.declare_publisher(keys.trigger, express=True)
     sent = 0
+    gcs = IdleGC()
+    gcs.start()
     if fps > 0:
         sched = Schedule(time.monotonic_ns(), round(1e9 / fps))
         k = 0
@@ -100,6 +102,7 @@ def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame:
                 nxt = slot
             k = nxt
             rt.publish_status()
+            gcs.idle()
     else:
         got = threading.Event()
         last_frame = [-1]
@@ -123,6 +126,7 @@ def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame:
                 rt.meter.add((time.monotonic_ns() - now) / 1e6)
                 k += 1
                 rt.publish_status()
+    gcs.stop()
     rt.extra["frames_triggered"] = sent
     rt.publish_status("stopping", force=True)
     pub.undeclare()
