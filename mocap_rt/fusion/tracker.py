@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -63,6 +64,12 @@ C_FOOT_L, C_FOOT_R = CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")
 _EFFECTOR_CUES = np.array([CUE_NAMES.index(n) for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
 VIEW_MODES = ("all", "pair")
+# cues whose views may be chosen by consensus (the torso's 2D points are silhouette
+# centres that disagree across views by design; it keeps the plain drop-worst rejection)
+_CONSENSUS_CUES = np.array([n != "torso" for n in CUE_NAMES])
+_NO_CUES = np.zeros(len(CUE_NAMES), dtype=bool)
+# frames over which the walking-side check measures the turn rate of the walking direction
+SIDE_TURN_WINDOW_FRAMES = 9
 IK_MODES = ("analytic", "ccd")
 
 
@@ -75,6 +82,8 @@ class FusionConfig:
     max_reproj_px: float = 6.0             # outlier rejection threshold (head, hands, feet)
     torso_max_reproj_px: float = 15.0      # the same for the torso (its 2D points are silhouette
                                            # centres, not projections of one 3D point)
+    consensus_views: bool = False          # restart outlier rejection from the largest consensus set of views
+                                           # (views.triangulate_cues); off: measured worse on cmu_131_01
     min_confidence: float = 0.05           # 2D cues below this are ignored
     fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
     duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
@@ -83,9 +92,12 @@ class FusionConfig:
     bone_lengths: BoneLengths | None = None
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
-    side_walk_speed_mps: float = 0.5       # walking-side identity check (``_check_sides``) above this torso speed:
-    side_margin_m: float = 0.02            # a hand/foot pair whose left one lies this far on the walk's right ...
-    side_frames: int = 4                   # ... this many more frames than on the right side is swapped (0 = off)
+    side_walk_speed_mps: float = 0.6       # walking-side identity check (``_check_sides``) above this torso speed
+    side_max_turn_dps: float = 45.0        # ... and below this turn rate of the walking direction:
+    side_margin_hands_m: float = 0.10      # a hand pair whose left one lies this far on the walk's right, or a
+    side_margin_feet_m: float = 0.03       # foot pair this far, ...
+    side_frames: int = 4                   # ... while the other pair is on its side, this many more frames than on
+                                           # its own side, is swapped (0 = off)
     filter: FilterConfig = field(default_factory=FilterConfig)
     analytic: AnalyticConfig = field(default_factory=AnalyticConfig)
     ccd: CcdConfig = field(default_factory=lambda: CcdConfig(angle_tolerance_deg=20.0, max_iterations=30))
@@ -171,6 +183,8 @@ class BodyTracker:
         self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
         self._side_votes = np.zeros(len(LR_PAIRS), dtype=np.int64)
         self.side_swaps = 0   # left/right track swaps made by the walking-side check so far
+        self._side_headings: deque[float] = deque(maxlen=SIDE_TURN_WINDOW_FRAMES)
+        self._side_vel: np.ndarray | None = None
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
@@ -213,7 +227,8 @@ class BodyTracker:
         """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6)."""
         thr = np.full(N_CUES, self.config.max_reproj_px)
         thr[C_TORSO] = self.config.torso_max_reproj_px
-        X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, thr)
+        X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, thr,
+                                      _CONSENSUS_CUES if self.config.consensus_views else _NO_CUES)
         if self.config.views == "pair" and self._pair is not None:
             a, b = self._pair
             wp = np.zeros_like(w)
@@ -362,30 +377,56 @@ class BodyTracker:
         the facing reversed, and at a cold start the labels come from perception's
         "facing the camera" convention, right in the views in front of the person and wrong
         in those behind. Walking breaks the symmetry: people face where they walk, so the
-        left hand/foot lies left of the torso's horizontal velocity (up x heading), across
-        the track (hands ~0.3 m apart, feet ~0.05-0.2 m; the along-track swing does not
-        enter). A pair measured on the wrong side by more than ``side_margin_m`` in
-        ``side_frames`` more frames than on the right side (a vote that a frame on the right
-        side lowers by one) while the torso moves faster than
-        ``side_walk_speed_mps`` is swapped, measurement and filter tracks, so the next
-        prediction (and with it perception's labelling) follows. Returns X (6, 3), possibly
-        with rows exchanged.
+        left hand/foot lies left of the head's horizontal velocity (up x heading), across
+        the track (hands ~0.45 m apart, feet ~0.05-0.15 m; the along-track swing does not
+        enter). Only a brisk, straight walk counts: the head's smoothed horizontal speed
+        >= ``side_walk_speed_mps`` and its heading turning slower than
+        ``side_max_turn_dps`` over ``SIDE_TURN_WINDOW_FRAMES`` (the studio clips step
+        sideways through turns, and a kick sways the body). A pair is voted wrong in a
+        frame when it lies on the other side by more than its margin
+        (``side_margin_hands_m``, ``side_margin_feet_m``) *while the other pair is on its
+        own side*: both pairs reversed is what walking backwards looks like (cmu_131_01
+        walks backwards at up to 0.9 m/s), and a fully mirrored body cannot be told from it
+        here, so that case is left alone. ``side_frames`` more wrong votes than right ones
+        swap the pair, measurement and filter tracks, so the next prediction (and with it
+        perception's labelling) follows. Returns X (6, 3), possibly with rows exchanged.
         """
         cfg = self.config
-        if cfg.side_frames <= 0 or self._vel is None:
-            return X
-        v = self._vel                                         # smoothed: a noisy heading leaks the
-        speed = float(np.hypot(v[0], v[1]))
-        if not speed >= cfg.side_walk_speed_mps:
-            return X
-        left = np.array([-v[1], v[0], 0.0]) / speed          # steps' along-track length into "across"
         for k, (a, b) in enumerate(LR_PAIRS):
-            if not (valid[a] and valid[b]):
-                continue
-            side = float((X[a] - X[b]) @ left)
-            if side < -cfg.side_margin_m:
+            if not self.filter.alive[[a, b]].all():      # a track (re)starts: no evidence yet
+                self._side_votes[k] = 0
+        if cfg.side_frames <= 0 or not self.filter.alive[C_HEAD]:
+            return X
+        # the head's smoothed velocity: the head cue is the most precise (~5 mm), the torso
+        # cue jitters by centimetres, and a noisy heading leaks the steps' along-track
+        # length into "across"
+        vh = self.filter.vel[C_HEAD]
+        a_s = cfg.velocity_smoothing
+        self._side_vel = vh.copy() if self._side_vel is None else a_s * self._side_vel + (1 - a_s) * vh
+        v = self._side_vel
+        speed = float(np.hypot(v[0], v[1]))
+        heading = float(np.arctan2(v[1], v[0]))
+        self._side_headings.append(heading)
+        if not speed >= cfg.side_walk_speed_mps or len(self._side_headings) < self._side_headings.maxlen:
+            return X
+        # turn rate over the window (per-frame heading differences are too noisy)
+        turn_dps = abs(np.degrees((heading - self._side_headings[0] + np.pi) % (2 * np.pi) - np.pi)) * \
+            cfg.fps / (len(self._side_headings) - 1)
+        if turn_dps > cfg.side_max_turn_dps:
+            return X
+        left = np.array([-v[1], v[0], 0.0]) / speed          # world up x heading
+        state = np.zeros(len(LR_PAIRS), dtype=np.int64)     # +1 on its side, -1 on the other, 0 unclear
+        for k, (a, b) in enumerate(LR_PAIRS):
+            if valid[a] and valid[b]:
+                margin = cfg.side_margin_hands_m if a == C_HAND_L else cfg.side_margin_feet_m
+                side = float((X[a] - X[b]) @ left)
+                state[k] = 1 if side > margin else -1 if side < -margin else 0
+        for k, (a, b) in enumerate(LR_PAIRS):
+            # one pair against the other: both on the "wrong" side is walking backwards
+            # (or a mirrored body, which nothing here can tell apart): leave it
+            if state[k] < 0 and state[1 - k] > 0:
                 self._side_votes[k] += 1
-            elif side > cfg.side_margin_m:
+            elif state[k] > 0:
                 self._side_votes[k] = max(0, self._side_votes[k] - 1)
             if self._side_votes[k] >= cfg.side_frames:
                 X = X.copy()

@@ -6,8 +6,10 @@
   are closest to perpendicular to the feet vector and on the subject's front. We look
   at the subject's torso instead of the world origin (the subject walks around).
 * ``triangulate_cues`` — all views that see a cue, weighted least squares of the rays,
-  then reprojection-based outlier rejection (drop the worst view while its error is
-  above ``max_reproj_px`` and at least three views remain).
+  then reprojection-based outlier rejection: when a view reprojects beyond
+  ``max_reproj_px``, the cue restarts from the largest consensus set of views (every
+  pair triangulates, the views within the threshold of its point are its inliers), then
+  the worst view is dropped while its error is above the threshold and >= 3 views remain.
 * ``fix_left_right`` — a single view cannot be sure which hand (foot) is the left one:
   per view, keep the labelling that agrees with the 3D prediction, or at a cold start
   the combination of per-view labellings that triangulates best.
@@ -120,17 +122,30 @@ def frontal_pair(centers: np.ndarray, foot_l: np.ndarray, foot_r: np.ndarray, ta
 
 
 def triangulate_cues(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, weights: np.ndarray,
-                     max_reproj_px: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     max_reproj_px: float | np.ndarray, consensus: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Weighted N-view triangulation with reprojection outlier rejection.
 
     uv : (C, N, 2) distorted pixels, NaN = not seen; weights : (C, N) >= 0 (0 = not used).
     max_reproj_px : scalar or (N,) per-point threshold, pixels.
+    consensus : (N,) bool, points that may restart from the largest consensus set of views
+        (``_consensus_views``) when a view exceeds the threshold; None = all.
     Returns ``(X (N, 3) metres NaN where < 2 views, used (C, N) bool, residual_px (C, N))``.
     """
     w = np.where(np.isfinite(uv).all(-1), weights, 0.0)
     used = w > 0
     X = tri(uv, w)
     n = uv.shape[1]
+    res = _residuals(proj, X, uv, used)
+    bad = (np.where(used, res, 0.0) > max_reproj_px).any(axis=0) & (used.sum(axis=0) >= 3)   # (N,)
+    if consensus is not None:
+        bad &= consensus
+    if bad.any():
+        # least squares follows a wrong view before it can be dropped (two wrong views in
+        # six can make a right one the worst): restart those cues from a consensus
+        used = _consensus_views(tri, proj, uv, w, used, bad, max_reproj_px)
+        w = np.where(used, w, 0.0)
+        X = tri(uv, w)
     for _ in range(max(0, uv.shape[0] - 2)):
         res = _residuals(proj, X, uv, used)
         worst = np.argmax(np.where(used & np.isfinite(res), res, -1.0), axis=0)   # (N,)
@@ -142,6 +157,44 @@ def triangulate_cues(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, w
         w = np.where(used, w, 0.0)
         X = tri(uv, w)
     return X, used, _residuals(proj, X, uv, used)
+
+
+# smallest consensus set of views that replaces the plain least-squares set
+MIN_CONSENSUS_VIEWS = 3
+
+
+def _consensus_views(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, w: np.ndarray, used: np.ndarray,
+                     bad: np.ndarray, max_reproj_px: float | np.ndarray) -> np.ndarray:
+    """Views to keep (C, N) for the ``bad`` cues: the largest consensus set (RANSAC over pairs).
+
+    Every pair of views triangulates the cue; the views reprojecting within
+    ``max_reproj_px`` of that point are its inliers; the pair with the most inliers (then
+    the least capped residual sum) wins. Cues without a consensus of >= 2 views keep
+    ``used``. uv (C, N, 2), w (C, N) weights, used/bad boolean (C, N) / (N,).
+    """
+    C, n = w.shape
+    thr = np.broadcast_to(np.asarray(max_reproj_px, dtype=np.float64), (n,))
+    best_n = np.zeros(n)
+    best_cost = np.full(n, np.inf)
+    best_set = used.copy()
+    for i in range(C):
+        for j in range(i + 1, C):
+            pair = used[[i, j]].all(axis=0) & bad
+            if not pair.any():
+                continue
+            wp = np.zeros_like(w)
+            wp[[i, j]] = np.where(pair[None, :], w[[i, j]], 0.0)
+            X = tri(uv, wp)
+            r = _residuals(proj, X, uv, used)
+            inl = used & (r <= thr[None, :])
+            k = inl.sum(axis=0)
+            cost = np.where(inl, r, 0.0).sum(axis=0) + thr * (used.sum(axis=0) - k)
+            better = pair & ((k > best_n) | ((k == best_n) & (cost < best_cost)))
+            best_n = np.where(better, k, best_n)
+            best_cost = np.where(better, cost, best_cost)
+            best_set[:, better] = inl[:, better]
+    ok = best_n >= MIN_CONSENSUS_VIEWS
+    return np.where(ok[None, :], best_set, used)
 
 
 def _residuals(proj: RigProjector, X: np.ndarray, uv: np.ndarray, used: np.ndarray) -> np.ndarray:

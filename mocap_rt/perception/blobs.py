@@ -26,6 +26,7 @@ Coordinates: pixels of the full image unless a name says ``roi``.
 
 from __future__ import annotations
 
+import itertools
 import logging
 from dataclasses import dataclass
 
@@ -58,6 +59,7 @@ class BlobParams:
     mirror_iters: int = 20              # occlusion completion rounds (converges; blob_kernels.deform_ellipse)
     exclusive_pixels: bool = True       # boundary search ignores colour pixels of the other blobs
     facing_camera: bool = True          # cold-start convention: image-left = person's right
+    snap_to_regions: bool = True        # label around the blobs' own colour regions when each has one
 
 
 @dataclass
@@ -147,6 +149,8 @@ class BlobTracker:
             return BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K),
                              [None] * K)
         box = (bx, by, bx + bw, by + bh)
+        if p.snap_to_regions and K >= 2:
+            centers = self._snap_to_regions(skin_roi, box, centers, gate)
         mirror = p.mirror_iters if sil_roi is not None else 0
         found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
         acquired = np.zeros(K, bool)
@@ -175,6 +179,46 @@ class BlobTracker:
         return self._sums[:, 0] >= p.min_area_px
 
     # ------------------------------------------------------------------ internals
+    def _snap_to_regions(self, skin_roi, box, centers, gate) -> np.ndarray:
+        """Labelling centres moved onto the colour regions the blobs belong to.
+
+        The prediction guides, the evidence decides: when every predicted blob of this
+        tracker has its own connected colour region within reach (gate + the region's half
+        size), the regions are assigned to the blobs by the least total distance (all
+        one-to-one assignments tried, K <= 3) and each blob is labelled around its region's
+        centre. A fast limb makes the prediction lag (a swinging foot moves ~0.1 m per
+        frame), and labelling pixels by proximity to lagging predictions splits one shoe
+        between both feet or hands the swing foot to the standing one. Regions that merged
+        (touching shoes) are not enough regions: then the predictions stay the centres.
+        """
+        p = self.params
+        K = len(self.roles)
+        have = np.isfinite(centers).all(axis=1)
+        if have.sum() < 2:
+            return centers
+        x0, y0, x1, y1 = box
+        mask = (skin_roi[y0:y1, x0:x1] >= 0.5).view(np.uint8)
+        n, _, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+        big = [j for j in range(1, n) if stats[j, 4] >= p.acquire_min_area_px]
+        if len(big) < have.sum() or len(big) > 8:
+            return centers
+        cc = cent[big] + (x0, y0)                                           # (R, 2) roi px
+        half = 0.5 * np.maximum(stats[big, 2], stats[big, 3])               # (R,)
+        ks = np.flatnonzero(have)
+        d = np.linalg.norm(centers[ks, None, :] - cc[None, :, :], axis=-1)  # (k, R)
+        reach = d <= gate[ks, None] + half[None, :]
+        best, best_cost = None, np.inf
+        for perm in itertools.permutations(range(len(big)), len(ks)):
+            if all(reach[i, r] for i, r in enumerate(perm)):
+                cost = sum(d[i, r] for i, r in enumerate(perm))
+                if cost < best_cost:
+                    best, best_cost = perm, cost
+        if best is None:
+            return centers
+        out = centers.copy()
+        out[ks] = cc[list(best)]
+        return out
+
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
         """Assign unclaimed colour regions to missing blobs; sets ``_acq_centers``/``_acq_gate``."""
         p = self.params

@@ -40,6 +40,7 @@ log = logging.getLogger(__name__)
 _SKIN_IDX = np.array([CUE_NAMES.index(c) for c in SKIN_CUES])
 _SHOE_IDX = np.array([CUE_NAMES.index(c) for c in SHOE_CUES])
 _TORSO = CUE_NAMES.index("torso")
+_HEAD = CUE_NAMES.index("head")
 _CROSS3 = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
@@ -61,6 +62,8 @@ class PerceptionConfig:
     roi_margin_frac: float = 0.05         # ... + this fraction of the box's larger side
     min_person_area_px: int = 200         # smaller largest component: no person
     torso_ridge_frac: float = DEFAULT_RIDGE_FRAC
+    torso_head_shift_frac: float = 0.08   # torso point moved this fraction of the torso->head distance away
+                                          # from the head (the ridge sits above the pelvis-neck midpoint)
     torso_step_px: int = 0                # distance-transform subsampling; 0 = 2 if width > 400 else 1
     background_update_rate: float = 0.0   # > 0: slow background update (per frame blend weight)
     close_px: int = 0                     # > 0: morphological closing (square, this size) of the change mask
@@ -192,6 +195,10 @@ class CameraPerceiver:
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
         if np.isfinite(txy).all():
             xy[_TORSO] = txy + (bx, by)
+            if self.config.torso_head_shift_frac and np.isfinite(xy[_HEAD]).all():
+                # bias correction (docs/perception.md, Torso): the distance-transform ridge
+                # lies 7-10 % of the torso-head distance above the pelvis-neck midpoint
+                xy[_TORSO] -= self.config.torso_head_shift_frac * (xy[_HEAD] - xy[_TORSO])
             cov[_TORSO] = tcov
             area[_TORSO] = float(np.count_nonzero(sil))
             conf[_TORSO] = 1.0
