@@ -109,7 +109,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise-px", type=float, default=1.0)
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--no-perception", action="store_true")
+    ap.add_argument("--recordings", nargs="*", default=[],
+                    help="more recording dirs for the closed-loop table [4] (besides out/studio)")
+    ap.add_argument("--closed-loop-only", action="store_true", help="only the closed-loop table [4]")
     args = ap.parse_args(argv)
+    if args.closed_loop_only:
+        _closed_loop(args)
+        return 0
     rng = np.random.default_rng(0)
     root = data_root() / "bvh"
     clips = sorted(root.glob("cmu/*.bvh")) + sorted(root.glob("bandai_namco/*.bvh"))
@@ -179,6 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     studio = sorted((REPO / "out" / "studio").glob("*/truth.npz"))
     if studio:
         _recordings(studio, args, base)
+    if not args.no_perception:
+        _closed_loop(args)
     allms = np.concatenate(ms_analytic)
     print(f"\n[3] speed per frame (BodyTracker.step: triangulation + outlier rejection + filter + IK + BVH row):")
     print(f"  analytic IK: median {np.median(allms):.3f} ms, p95 {np.percentile(allms, 95):.3f} ms "
@@ -229,6 +237,45 @@ def _recordings(studio, args, base):
                 ce, je = errors(out.cues, joints, tc[idx], tj[idx], joint_idx=jidx)
                 print(fmt_row("  " + name, ce, je) + f"  (perception {out.timings_ms.get('perception_6cam_median', 0):.0f} ms/frame)")
         rec.close()
+
+
+def _closed_loop(args) -> None:
+    """[4] The closed loop (perception <- prediction <- fusion) per recording and cue, with
+    the identity fixes of issues 4/5 switched off as the "before" row."""
+    import tempfile
+
+    from mocap_rt.fusion.offline import process_recording
+    from mocap_rt.io.recording import Recording
+    from mocap_rt.names import CUE_NAMES
+    from mocap_rt.perception.blobs import BlobParams
+    from mocap_rt.perception.pipeline import PerceptionConfig, config_for_source
+
+    dirs = [t.parent for t in sorted((REPO / "out" / "studio").glob("*6cam*/truth.npz"))]
+    dirs += [Path(d) for d in args.recordings]
+    print("\n[4] closed loop: perception of every camera -> fusion -> prediction -> next frame's perception"
+          " (mocap-rt process; estimated bones)")
+    print("    'before' = no region snap in perception, no walking-side check, no torso correction")
+    cue_hdr = " ".join(f"{n[:6]:>11s}" for n in CUE_NAMES)
+    print(f"{'recording / variant':44s} {'cue50':>6s} {'cue95':>6s} {'MPJPE':>6s} {'cover':>6s}  per cue median/p95 mm:")
+    print(f"{'':72s}{cue_hdr}")
+    for d in dirs:
+        rec = Recording(d)
+        if rec.truth is None:
+            continue
+        fps, source = rec.fps, rec.source
+        rec.close()
+        pc = config_for_source(PerceptionConfig(), source)
+        before = replace(pc, skin_blobs=BlobParams(snap_to_regions=False), shoe_blobs=BlobParams(snap_to_regions=False),
+                         torso_head_shift_frac=0.0)
+        print(f"{d.name}")
+        for name, pcfg, fcfg in (("closed loop (default)", pc, FusionConfig(fps=fps)),
+                                 ("before (issue-5 behaviour)", before, FusionConfig(fps=fps, side_frames=0))):
+            with tempfile.TemporaryDirectory() as tmp:
+                out = process_recording(d, tmp, fcfg, perception_config=pcfg, progress=False)
+            acc = out.accuracy
+            per = acc.per_cue_mm()
+            cells = " ".join(f"{per[n][0]:5.0f}/{per[n][1]:<5.0f}" for n in CUE_NAMES)
+            print(fmt_row("  " + name, acc.cue_err, acc.joint_err) + f"  {cells}")
 
 
 if __name__ == "__main__":

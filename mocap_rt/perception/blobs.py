@@ -294,6 +294,18 @@ class BlobTracker:
                 cand.insert(0, c_left)
                 take(k_imgleft, 0)
                 take(k_imgright, 0)
+            elif len(need) == 2 and len(cand) == 1:
+                # one region for two blobs (the other hidden, out of the image, or too
+                # small): it goes to the nearer last-seen one, or on a cold start to the side
+                # it is on (person facing the camera: image-left = their right); fusion's
+                # cross-view left/right agreement corrects the guess
+                c = cand[0][1]
+                if np.isfinite(last_seen[[kl, kr]]).all():
+                    k = kl if np.hypot(*(c - last_seen[kl])) <= np.hypot(*(c - last_seen[kr])) else kr
+                else:
+                    on_left = c[0] < 0.5 * (x0 + x1)
+                    k = (kr if on_left else kl) if p.facing_camera else (kl if on_left else kr)
+                take(k, 0)
             elif len(need) == 1 and cand:
                 take(need[0], 0)
         return acquired
