@@ -185,6 +185,7 @@ class BodyTracker:
         self.side_swaps = 0   # left/right track swaps made by the walking-side check so far
         self._side_headings: deque[float] = deque(maxlen=SIDE_TURN_WINDOW_FRAMES)
         self._side_vel: np.ndarray | None = None
+        self._side_ema = np.full(len(LR_PAIRS), np.nan)   # smoothed across-track offset of each pair, m
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
@@ -395,6 +396,7 @@ class BodyTracker:
         for k, (a, b) in enumerate(LR_PAIRS):
             if not self.filter.alive[[a, b]].all():      # a track (re)starts: no evidence yet
                 self._side_votes[k] = 0
+                self._side_ema[k] = np.nan
         if cfg.side_frames <= 0 or not self.filter.alive[C_HEAD]:
             return X
         # the head's smoothed velocity: the head cue is the most precise (~5 mm), the torso
@@ -416,11 +418,15 @@ class BodyTracker:
             return X
         left = np.array([-v[1], v[0], 0.0]) / speed          # world up x heading
         state = np.zeros(len(LR_PAIRS), dtype=np.int64)     # +1 on its side, -1 on the other, 0 unclear
+        a_s = cfg.velocity_smoothing
         for k, (a, b) in enumerate(LR_PAIRS):
             if valid[a] and valid[b]:
-                margin = cfg.side_margin_hands_m if a == C_HAND_L else cfg.side_margin_feet_m
                 side = float((X[a] - X[b]) @ left)
-                state[k] = 1 if side > margin else -1 if side < -margin else 0
+                e = self._side_ema[k]
+                self._side_ema[k] = side if not np.isfinite(e) else a_s * e + (1 - a_s) * side
+            margin = cfg.side_margin_hands_m if a == C_HAND_L else cfg.side_margin_feet_m
+            e = self._side_ema[k]     # smoothed: a step's crossing feet do not count as a reversal
+            state[k] = 1 if e > margin else -1 if e < -margin else 0
         for k, (a, b) in enumerate(LR_PAIRS):
             # one pair against the other: both on the "wrong" side is walking backwards
             # (or a mirrored body, which nothing here can tell apart): leave it
@@ -433,6 +439,7 @@ class BodyTracker:
                 X[[a, b]] = X[[b, a]]
                 self.filter.swap(a, b)
                 self._side_votes[k] = 0
+                self._side_ema[k] = -self._side_ema[k]
                 self.side_swaps += 1
                 log.info("left/right %s and %s swapped: on the wrong side of the walk", CUE_NAMES[a], CUE_NAMES[b])
         return X

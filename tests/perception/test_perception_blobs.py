@@ -175,3 +175,38 @@ def test_touching_blobs_of_one_colour_do_not_merge():
     assert np.hypot(cx - xs.mean(), cy - ys.mean()) < 0.6
     merged = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour, _NO_SITES, 0)
     assert merged[0] > cx + 0.5            # without the assignment the search leaks into b
+
+
+def _feet_frame(fl, fr, size=(200, 160), r=7):
+    shoe = np.zeros(size[::-1], np.float32)
+    for c in (fl, fr):
+        if c is not None:
+            cv2.circle(shoe, (int(round(c[0])), int(round(c[1]))), r, 1.0, -1)
+    return shoe
+
+
+@pytest.mark.parametrize("snap", [True, False])
+def test_lagging_predictions_label_each_blob_from_its_own_region(snap):
+    """A swinging foot moves faster than its prediction: the prediction lies between the two
+    shoes, nearer the standing one's far side. Labelled by proximity alone, the swing shoe's
+    pixels split between both feet; with the regions assigned as wholes, each cue is its shoe."""
+    stand, swing = np.array([100.0, 100.0]), np.array([80.0, 96.0])
+    pred = np.array([[103.0, 100.0], [96.0, 99.0]])         # foot_l = standing, foot_r lags 16 px
+    tr = BlobTracker(("foot_l", "foot_r"), BlobParams(snap_to_regions=snap))
+    out = tr.step(_feet_frame(stand, swing), (0, 0), (0, 0, 200, 160), None, pred, np.ones(2, bool),
+                  np.full(2, 10.0))
+    err = np.hypot(*(out.xy - [stand, swing]).T)
+    if snap:
+        assert err.max() < 0.5
+    else:                                                   # the old behaviour this guards against
+        assert err.max() > 2.0
+
+
+def test_cold_start_acquires_a_lone_shoe_by_its_side():
+    """Only one shoe visible at the first frame (the other hidden or out of the image): it
+    is still found, labelled by the facing-the-camera convention (image-left = person's right)."""
+    for pos, expect in (((60.0, 120.0), 1), ((140.0, 120.0), 0)):
+        tr = BlobTracker(("foot_l", "foot_r"))
+        out = tr.step(_feet_frame(pos, None), (0, 0), (0, 0, 200, 160), None)
+        np.testing.assert_allclose(out.xy[expect], pos, atol=0.5)
+        assert np.isnan(out.xy[1 - expect]).all() and out.confidence[1 - expect] == 0
