@@ -38,7 +38,8 @@ def ensure_recording(path: Path) -> Path:
     return path
 
 
-def run_once(rec: Path, fps: float | None, duration_s: float, log_dir: Path, nice: int = 0) -> dict:
+def run_once(rec: Path, fps: float | None, duration_s: float, log_dir: Path, nice: int = 0,
+             rt_priority: int | None = None) -> dict:
     """One launcher run; ``fps=None`` = free-running (as fast as the pipeline answers)."""
     from mocap_rt.io.recording import Recording
     from nodes.launcher import Launcher, RunConfig
@@ -46,7 +47,7 @@ def run_once(rec: Path, fps: float | None, duration_s: float, log_dir: Path, nic
     base = Recording(rec).fps
     speed = None if fps is None else fps / base
     cfg = RunConfig(rig_path=rec / "rig.toml", source=f"replay:{rec}", speed=speed, duration_s=duration_s,
-                    status_line=False, log_dir=log_dir, nice=nice)
+                    status_line=False, log_dir=log_dir, nice=nice, rt_priority=rt_priority)
     stats = Launcher(cfg).run()
     stats["skipped_slots"] = stats["nodes"]["sync"]["drops"]
     stats["lost"] = stats["frames_dropped"] + stats["skipped_slots"]
@@ -106,18 +107,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=REPO / "out" / "bench" / "service.json")
     p.add_argument("--nice", type=int, default=0,
                    help="niceness of the service's processes (e.g. -10 on a shared machine; needs root)")
+    p.add_argument("--rt-priority", type=int, default=None,
+                   help="SCHED_FIFO priority of the workers (0 = off; default: the launcher's auto)")
     args = p.parse_args(argv or [])
     rec = ensure_recording(args.rec)
     logs = args.out.parent / "service_logs"
     results: dict[str, dict] = {}
     print(f"service bench: {rec}, loadavg {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores, "
-          f"nice {args.nice}", flush=True)
+          f"nice {args.nice}, rt-priority {'auto' if args.rt_priority is None else args.rt_priority}", flush=True)
     print(HEADER)
     t0 = time.perf_counter()
-    results["30fps"] = s = run_once(rec, TARGET_FPS, args.duration, logs / "30", args.nice)
+    results["30fps"] = s = run_once(rec, TARGET_FPS, args.duration, logs / "30", args.nice, args.rt_priority)
     print(_row("30 fps", s), flush=True)
     print(stage_table(s) + "\n", flush=True)
-    results["60fps"] = s = run_once(rec, 60.0, args.duration_60, logs / "60", args.nice)
+    results["60fps"] = s = run_once(rec, 60.0, args.duration_60, logs / "60", args.nice, args.rt_priority)
     print(_row("60 fps", s), flush=True)
     best = TARGET_FPS if results["30fps"]["lost"] == 0 else 0.0
     failures = 0
@@ -125,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
         if fps == 60.0:
             s = results["60fps"]
         else:
-            s = results[f"{fps:g}fps"] = run_once(rec, fps, args.search_duration, logs / f"{fps:g}", args.nice)
+            s = results[f"{fps:g}fps"] = run_once(rec, fps, args.search_duration, logs / f"{fps:g}", args.nice, args.rt_priority)
             print(_row(f"{fps:g} fps", s), flush=True)
         if s["lost"] == 0:
             best, failures = max(best, fps), 0
@@ -133,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
             failures += 1
             if failures == 2:
                 break
-    results["max"] = s = run_once(rec, None, args.search_duration, logs / "max", args.nice)
+    results["max"] = s = run_once(rec, None, args.search_duration, logs / "max", args.nice, args.rt_priority)
     print(_row("free-run", s), flush=True)
     r30 = results["30fps"]
     verdict = {"drops_30fps": r30["lost"], "p99_30fps_ms": r30["latency_ms"]["p99"],

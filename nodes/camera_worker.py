@@ -226,6 +226,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.publish_frames and source.live:
                 session.put(keys.background(camera.name),
                             Background(keys.rig, camera.name, backgrounds).to_msgpack())
+            rt.enter_realtime(args.rt_priority)
             rt.publish_status("ready", force=True)
             run_worker(session, keys, camera, source, perceiver, rt, args.preview_every,
                        args.publish_frames and source.live)

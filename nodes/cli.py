@@ -47,7 +47,10 @@ def register(subparsers) -> None:
     p.add_argument("--log-dir", type=Path, default=None, help="node logs (default: a temp dir)")
     p.add_argument("--quiet", action="store_true", help="no live status line")
     p.add_argument("--nice", type=int, default=0,
-                   help="niceness of every node, e.g. -10 to run ahead of other work (needs root)")
+                   help="niceness of sync, workers and fusion, e.g. -10 (needs root or CAP_SYS_NICE)")
+    p.add_argument("--rt-priority", type=int, default=None,
+                   help="SCHED_FIFO priority of the workers once warmed up (fusion +1, sync +2); 0 = off; "
+                        "default: 10 at a triggered rate, off with --speed max (needs root or CAP_SYS_NICE)")
     p.set_defaults(func=run)
 
     n = subparsers.add_parser("node", help="run one service node (for systemd / multi-host deploys)",
@@ -76,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = RunConfig(rig_path=Path(rig), source=args.source, speed=args.speed, duration_s=args.duration,
                     rerun=args.rerun, record=args.record, stats=args.stats, deadline_frac=args.deadline_frac,
                     preview_every=args.preview_every, restart=not args.no_restart, log_dir=args.log_dir,
-                    status_line=not args.quiet, nice=args.nice)
+                    status_line=not args.quiet, nice=args.nice,
+                    rt_priority=args.rt_priority)
     launcher = Launcher(cfg)
     print(f"mocap-rt run: rig {launcher.rig_name}, {len(launcher.rig)} cameras, trigger "
           f"{launcher.trigger_fps:g} fps ({'free-run' if cfg.speed is None else f'x{cfg.speed:g}'}), "

@@ -348,6 +348,7 @@ def main(argv: list[str] | None = None) -> int:
         fps = args.fps or float(rig.metadata.get("fps", 30.0))
         log.info("fusion: warm-up took %.2f s", warm_up(rig, fps))
         tracker = make_tracker(rig, fps)
+        rt.enter_realtime(args.rt_priority)
         rt.publish_status("ready", force=True)
         run_fusion(session, keys, rig, tracker, rt, args.deadline_frac)
         rt.publish_status("stopping", force=True)

@@ -39,6 +39,9 @@ RESTART_LIMIT = 10
 POLL_S = 0.05
 STATUS_LINE_PERIOD_S = 1.0
 DEFAULT_PREVIEW_EVERY = 3      # with a viewer: one JPEG per camera every 3 frames
+REALTIME_ROLES = ("sync", "camera", "fusion")   # the trigger -> pose path: ``nice`` and FIFO
+DEFAULT_RT_PRIORITY = 10       # SCHED_FIFO priority of the workers (fusion 11, sync 12)
+RT_PRIORITY_OFFSET = {"camera": 0, "fusion": 1, "sync": 2}
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                      "NUMBA_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1"}
 
@@ -61,7 +64,10 @@ class RunConfig:
     log_dir: Path | None = None
     status_line: bool = True
     fps: float | None = None           # override the trigger base rate
-    nice: int = 0                      # niceness increment of every node (negative: higher priority)
+    nice: int = 0                      # niceness of sync, workers, fusion (negative: higher priority)
+    rt_priority: int | None = None     # SCHED_FIFO base priority of workers (fusion +1, sync +2)
+                                       # once warmed up; 0 = off; None = auto (DEFAULT_RT_PRIORITY
+                                       # at a triggered rate, off when free-running)
     extra_node_args: dict = field(default_factory=dict)   # node role -> extra argv
 
 
@@ -98,7 +104,14 @@ def free_port() -> int:
 
 def _child_setup(nice: int):
     """preexec_fn: the child gets SIGTERM if the launcher dies (Linux prctl PR_SET_PDEATHSIG)
-    and, if asked, a scheduling priority (negative ``nice`` needs root or CAP_SYS_NICE)."""
+    and, if asked, a scheduling priority (negative ``nice`` needs root or CAP_SYS_NICE).
+
+    Every node is started in its own session (``start_new_session``), and with the kernel's
+    autogroup scheduling (``/proc/sys/kernel/sched_autogroup_enabled``, on in most distros) a
+    new session is a new scheduling group: CPU is shared between the *groups* first, and a
+    process's own niceness only counts inside its group. So the niceness is also given to the
+    node's autogroup (``/proc/self/autogroup``), else it would have no effect against other
+    work on the host."""
     def setup() -> None:
         try:
             ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
@@ -109,6 +122,11 @@ def _child_setup(nice: int):
                 os.nice(nice)
             except OSError:
                 pass      # not permitted: run at the normal priority
+            try:
+                with open("/proc/self/autogroup", "w") as f:
+                    f.write(str(nice))
+            except OSError:
+                pass      # no autogroups, or not permitted
     return setup
 
 
@@ -159,6 +177,7 @@ class Launcher:
         self.keys = Keys(self.rig_name)
         self.base_fps = cfg.fps or self._source_fps(kind, value)
         self.trigger_fps = 0.0 if cfg.speed is None else self.base_fps * cfg.speed
+        self.rt_priority = self._rt_priority()
         self.n_replay_frames = self._replay_frames(kind, value)
         self.log_dir = Path(cfg.log_dir or tempfile.mkdtemp(prefix="mocap-rt-logs-"))
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -173,6 +192,26 @@ class Launcher:
         self._plan()
 
     # ------------------------------------------------------------ planning
+    def _rt_priority(self) -> int:
+        """The workers' SCHED_FIFO priority (0 = normal scheduling).
+
+        Auto (``cfg.rt_priority`` None): real-time at a triggered rate, where the trigger
+        bounds the nodes' duty cycle; never when free-running (``--speed max``), where
+        real-time nodes would take the whole machine. Needs root, CAP_SYS_NICE or an
+        RLIMIT_RTPRIO of at least the priority; without it the nodes run normally."""
+        import resource
+
+        want = self.cfg.rt_priority
+        if want is None:
+            want = DEFAULT_RT_PRIORITY if self.trigger_fps > 0 else 0
+        if want <= 0:
+            return 0
+        top = want + max(RT_PRIORITY_OFFSET.values())
+        if os.geteuid() != 0 and resource.getrlimit(resource.RLIMIT_RTPRIO)[0] < top:
+            log.info("real-time scheduling not permitted (needs root, CAP_SYS_NICE or RLIMIT_RTPRIO >= %d): "
+                     "the nodes run at the normal priority", top)
+        return want
+
     def _source_fps(self, kind: str, value: str) -> float:
         if kind in ("replay", "fake"):
             from mocap_rt.io.recording import Recording
@@ -233,6 +272,8 @@ class Launcher:
             earlier.append(name)
             z = zenoh_argv([f"tcp/127.0.0.1:{ports[name]}"], others)
             extra = list(cfg.extra_node_args.get(role, []))
+            if self.rt_priority > 0 and role in RT_PRIORITY_OFFSET:
+                extra = ["--rt-priority", str(self.rt_priority + RT_PRIORITY_OFFSET[role])] + extra
             self.nodes[name] = NodeProc(name, role, argv + common + ["--node", name] + z + extra, ports[name])
 
     # ------------------------------------------------------------ processes
@@ -243,7 +284,7 @@ class Launcher:
         env = dict(os.environ, PYTHONUNBUFFERED="1", **SINGLE_THREAD_ENV)
         node.proc = subprocess.Popen([sys.executable] + node.argv, stdout=logf, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, env=env, start_new_session=True,
-                                     preexec_fn=_child_setup(self.cfg.nice))
+                                     preexec_fn=_child_setup(self.cfg.nice if node.role in REALTIME_ROLES else 0))
         logf.close()
         node.cpu_last_s = 0.0
         log.debug("started %s pid %d", node.name, node.proc.pid)
@@ -433,7 +474,8 @@ class Launcher:
                            "cpu_s_running": round(n.cpu_s - self._cpu_at_start.get(name, 0.0), 3),
                            "restarts": n.restarts,
                            "drops": st.get("drops", 0), "decode_drops": st.get("decode_drops", 0),
-                           "fps": st.get("fps", 0.0), "processing_ms": st.get("processing_ms", 0.0)}
+                           "fps": st.get("fps", 0.0), "processing_ms": st.get("processing_ms", 0.0),
+                           "rt_priority": st.get("x_rt_priority", 0)}
         return {
             "rig": self.rig_name, "source": self.cfg.source, "trigger_fps": self.trigger_fps,
             "speed": "max" if self.cfg.speed is None else self.cfg.speed, "run_s": round(run_s, 3),

@@ -41,6 +41,9 @@ def base_parser(description: str, node_default: str) -> argparse.ArgumentParser:
     p.add_argument("--rig-name", default=None, help="key-expression name (default: from the rig)")
     p.add_argument("--node", default=node_default, help="node name in status messages")
     p.add_argument("--log-level", default="INFO")
+    p.add_argument("--rt-priority", type=int, default=0,
+                   help="once warmed up, run every thread of this node SCHED_FIFO at this priority "
+                        "(1-99; 0 = normal scheduling; needs root or CAP_SYS_NICE)")
     add_zenoh_args(p)
     return p
 
@@ -58,6 +61,36 @@ def load_rig(args: argparse.Namespace):
     if not args.rig_name:
         args.rig_name = rig_name_for(args.rig, rig)
     return rig
+
+
+def enter_realtime(priority: int) -> bool:
+    """Put every thread of this process (main, Zenoh's, callbacks) under SCHED_FIFO at
+    ``priority``; threads started later inherit it. Called once the node is warmed up (JIT
+    compilation at real-time priority would take the host's CPUs for seconds).
+
+    A real-time node is never preempted by ordinary work on the host, and the workers of one
+    frame run to completion instead of time-slicing the cores. Its duty cycle is bounded by
+    the trigger rate; the kernel's real-time throttling (``sched_rt_runtime_us``, 95 %) is
+    the safety net. Returns False (logged) when not permitted or ``priority`` <= 0.
+    """
+    if priority <= 0:
+        return False
+    param = os.sched_param(min(priority, os.sched_get_priority_max(os.SCHED_FIFO)))
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    done = 0
+    for tid in tids:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+            done += 1
+        except OSError as exc:
+            if done == 0:
+                log.warning("real-time priority %d not set (%s): normal scheduling", priority, exc)
+                return False
+    log.info("SCHED_FIFO priority %d on %d thread(s)", param.sched_priority, done)
+    return True
 
 
 class RateMeter:
@@ -105,7 +138,13 @@ class NodeRuntime:
         self.extra: dict[str, float] = {}
         self.state = "starting"
         self._status_pub = session.declare_publisher(keys.status(node))
+        self.extra["rt_priority"] = 0
         self._last_status = 0.0
+
+    def enter_realtime(self, priority: int) -> None:
+        """``enter_realtime`` for this node; the status reports the priority it got."""
+        if enter_realtime(priority):
+            self.extra["rt_priority"] = os.sched_getparam(0).sched_priority
 
     def install_signal_handlers(self) -> None:
         """SIGINT/SIGTERM end the loop cleanly (main thread only)."""

@@ -160,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             wait_for_peers(session, args.expect_peers, rt)
         if args.start_delay > 0:
             rt.stop.wait(args.start_delay)
+        rt.enter_realtime(args.rt_priority)
         sent = run_sync(session, keys, fps, args.frames, args.start_frame, rt)
         log.info("sync: %d triggers sent, %d slots skipped", sent, rt.drops)
     return 0
