@@ -68,6 +68,9 @@ VIEW_MODES = ("all", "pair")
 # centres that disagree across views by design; it keeps the plain drop-worst rejection)
 _CONSENSUS_CUES = np.array([n != "torso" for n in CUE_NAMES])
 _NO_CUES = np.zeros(len(CUE_NAMES), dtype=bool)
+# the walking-side check swaps a pair only while the other pair is this many times its
+# margin on its own side
+SIDE_OTHER_MARGIN_FACTOR = 2.0
 # frames over which the walking-side check measures the turn rate of the walking direction
 SIDE_TURN_WINDOW_FRAMES = 9
 IK_MODES = ("analytic", "ccd")
@@ -185,7 +188,6 @@ class BodyTracker:
         self.side_swaps = 0   # left/right track swaps made by the walking-side check so far
         self._side_headings: deque[float] = deque(maxlen=SIDE_TURN_WINDOW_FRAMES)
         self._side_vel: np.ndarray | None = None
-        self._side_ema = np.full(len(LR_PAIRS), np.nan)   # smoothed across-track offset of each pair, m
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
@@ -385,8 +387,8 @@ class BodyTracker:
         ``side_max_turn_dps`` over ``SIDE_TURN_WINDOW_FRAMES`` (the studio clips step
         sideways through turns, and a kick sways the body). A pair is voted wrong in a
         frame when it lies on the other side by more than its margin
-        (``side_margin_hands_m``, ``side_margin_feet_m``) *while the other pair is on its
-        own side*: both pairs reversed is what walking backwards looks like (cmu_131_01
+        (``side_margin_hands_m``, ``side_margin_feet_m``) *while the other pair is clearly on
+        its own side* (twice its margin): both pairs reversed is what walking backwards looks like (cmu_131_01
         walks backwards at up to 0.9 m/s), and a fully mirrored body cannot be told from it
         here, so that case is left alone. ``side_frames`` more wrong votes than right ones
         swap the pair, measurement and filter tracks, so the next prediction (and with it
@@ -396,7 +398,6 @@ class BodyTracker:
         for k, (a, b) in enumerate(LR_PAIRS):
             if not self.filter.alive[[a, b]].all():      # a track (re)starts: no evidence yet
                 self._side_votes[k] = 0
-                self._side_ema[k] = np.nan
         if cfg.side_frames <= 0 or not self.filter.alive[C_HEAD]:
             return X
         # the head's smoothed velocity: the head cue is the most precise (~5 mm), the torso
@@ -417,29 +418,25 @@ class BodyTracker:
         if turn_dps > cfg.side_max_turn_dps:
             return X
         left = np.array([-v[1], v[0], 0.0]) / speed          # world up x heading
-        state = np.zeros(len(LR_PAIRS), dtype=np.int64)     # +1 on its side, -1 on the other, 0 unclear
-        a_s = cfg.velocity_smoothing
+        side = np.full(len(LR_PAIRS), np.nan)              # across-track offset, m (NaN: not measured)
+        margin = np.array([cfg.side_margin_hands_m, cfg.side_margin_feet_m])
         for k, (a, b) in enumerate(LR_PAIRS):
             if valid[a] and valid[b]:
-                side = float((X[a] - X[b]) @ left)
-                e = self._side_ema[k]
-                self._side_ema[k] = side if not np.isfinite(e) else a_s * e + (1 - a_s) * side
-            margin = cfg.side_margin_hands_m if a == C_HAND_L else cfg.side_margin_feet_m
-            e = self._side_ema[k]     # smoothed: a step's crossing feet do not count as a reversal
-            state[k] = 1 if e > margin else -1 if e < -margin else 0
+                side[k] = float((X[a] - X[b]) @ left)
         for k, (a, b) in enumerate(LR_PAIRS):
             # one pair against the other: both on the "wrong" side is walking backwards
             # (or a mirrored body, which nothing here can tell apart): leave it
-            if state[k] < 0 and state[1 - k] > 0:
+            # and the other pair clearly on its side (x SIDE_OTHER_MARGIN_FACTOR: a backward
+            # walker's feet, reversed, still reach +4 cm during a step)
+            if side[k] < -margin[k] and side[1 - k] > SIDE_OTHER_MARGIN_FACTOR * margin[1 - k]:
                 self._side_votes[k] += 1
-            elif state[k] > 0:
+            elif side[k] > margin[k]:
                 self._side_votes[k] = max(0, self._side_votes[k] - 1)
             if self._side_votes[k] >= cfg.side_frames:
                 X = X.copy()
                 X[[a, b]] = X[[b, a]]
                 self.filter.swap(a, b)
                 self._side_votes[k] = 0
-                self._side_ema[k] = -self._side_ema[k]
                 self.side_swaps += 1
                 log.info("left/right %s and %s swapped: on the wrong side of the walk", CUE_NAMES[a], CUE_NAMES[b])
         return X
