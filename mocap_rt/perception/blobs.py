@@ -60,6 +60,7 @@ class BlobParams:
     exclusive_pixels: bool = True       # boundary search ignores colour pixels of the other blobs
     facing_camera: bool = True          # cold-start convention: image-left = person's right
     snap_to_regions: bool = True        # label around the blobs' own colour regions when each has one
+    acquire_lone_region: bool = True    # one region for a missing left/right pair: acquire it for one of them
 
 
 @dataclass
@@ -294,7 +295,7 @@ class BlobTracker:
                 cand.insert(0, c_left)
                 take(k_imgleft, 0)
                 take(k_imgright, 0)
-            elif len(need) == 2 and len(cand) == 1:
+            elif len(need) == 2 and len(cand) == 1 and p.acquire_lone_region:
                 # one region for two blobs (the other hidden, out of the image, or too
                 # small): it goes to the nearer last-seen one, or on a cold start to the side
                 # it is on (person facing the camera: image-left = their right); fusion's
