@@ -21,7 +21,7 @@ import time
 
 from nodes.messages import Background, Cues, Frame, Keys, Prediction, Preview, Trigger
 from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, setup_logging
-from nodes.transport import open_session
+from nodes.transport import direct_callback, open_session
 
 log = logging.getLogger(__name__)
 
@@ -115,8 +115,8 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
     cues_pub = session.declare_publisher(keys.cues(name), express=True)
     preview_pub = session.declare_publisher(keys.preview(name)) if preview_every > 0 else None
     frame_pub = session.declare_publisher(keys.frame(name)) if publish_frames else None
-    subs = [session.declare_subscriber(keys.trigger, on_trigger),
-            session.declare_subscriber(keys.prediction(name), on_prediction)]
+    subs = [session.declare_subscriber(keys.trigger, direct_callback(on_trigger)),
+            session.declare_subscriber(keys.prediction(name), direct_callback(on_prediction))]
     rt.publish_status("running", force=True)
     gcs = IdleGC()
     gcs.start()

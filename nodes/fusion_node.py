@@ -24,7 +24,7 @@ import numpy as np
 
 from nodes.messages import Cues, Keys, Pose, Prediction, Trigger
 from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, setup_logging
-from nodes.transport import open_session
+from nodes.transport import direct_callback, open_session
 
 log = logging.getLogger(__name__)
 
@@ -282,8 +282,8 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
 
     pose_pub = session.declare_publisher(keys.pose, express=True)
     pred_pubs = {c: session.declare_publisher(keys.prediction(c), express=True) for c in rig_cameras}
-    subs = [session.declare_subscriber(keys.trigger, on_trigger),
-            session.declare_subscriber(keys.cues(), on_cues)]
+    subs = [session.declare_subscriber(keys.trigger, direct_callback(on_trigger)),
+            session.declare_subscriber(keys.cues(), direct_callback(on_cues))]
     rt.publish_status("running", force=True)
     gcs = IdleGC()
     gcs.start()

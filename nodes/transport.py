@@ -61,6 +61,16 @@ def make_config(listen: Sequence[str] | None = None, connect: Sequence[str] | No
     return conf
 
 
+def direct_callback(fn):
+    """A subscriber handler that runs ``fn`` on Zenoh's receiving thread itself (zenoh-python's
+    ``Callback(indirect=False)``) instead of handing each sample to a separate Python thread:
+    one thread wake-up less between a message's arrival and the node's reaction. ``fn``
+    must be short and must not block (decode, then hand over to the node's own thread)."""
+    import zenoh
+
+    return zenoh.handlers.Callback(fn, indirect=False)
+
+
 def open_session(args: argparse.Namespace):
     """Open a Zenoh session from the flags of ``add_zenoh_args``."""
     import zenoh
