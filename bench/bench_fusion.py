@@ -254,7 +254,7 @@ def _closed_loop(args) -> None:
     dirs += [Path(d) for d in args.recordings]
     print("\n[4] closed loop: perception of every camera -> fusion -> prediction -> next frame's perception"
           " (mocap-rt process; estimated bones)")
-    print("    'before' = perception without region snap, lone-region acquisition and torso correction;"
+    print("    'before' = perception without region snap and lone-region acquisition;"
           " fusion without the walking-side check")
     cue_hdr = " ".join(f"{n[:6]:>11s}" for n in CUE_NAMES)
     print(f"{'recording / variant':44s} {'cue50':>6s} {'cue95':>6s} {'MPJPE':>6s} {'cover':>6s}  per cue median/p95 mm:")
@@ -267,7 +267,7 @@ def _closed_loop(args) -> None:
         rec.close()
         pc = config_for_source(PerceptionConfig(), source)
         old_blobs = BlobParams(snap_to_regions=False, acquire_lone_region=False)
-        before = replace(pc, skin_blobs=old_blobs, shoe_blobs=old_blobs, torso_head_shift_frac=0.0)
+        before = replace(pc, skin_blobs=old_blobs, shoe_blobs=old_blobs)
         print(f"{d.name}")
         for name, pcfg, fcfg in (("closed loop (default)", pc, FusionConfig(fps=fps)),
                                  ("before (issue-5 behaviour)", before, FusionConfig(fps=fps, side_frames=0))):

@@ -75,6 +75,8 @@ class BlobFrame:
 
 
 _NO_SIL = np.zeros((1, 1), np.uint8)
+SNAP_WINDOW_GATES = 2.5     # region snap: search window around the predicted blobs, in gate radii
+SNAP_MAX_REGIONS = 5        # ... and at most this many candidate regions (nearest first)
 _NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
 _NAN_K = np.full(8, np.nan)
 
@@ -187,37 +189,61 @@ class BlobTracker:
         tracker has its own connected colour region within reach (gate + the region's half
         size), the regions are assigned to the blobs by the least total distance (all
         one-to-one assignments tried, K <= 3) and each blob is labelled around its region's
-        centre. A fast limb makes the prediction lag (a swinging foot moves ~0.1 m per
+        centre. Only done where two blobs' labelling gates overlap (elsewhere proximity
+        cannot mix them up, and a missing blob is re-acquired). A fast limb makes the prediction lag (a swinging foot moves ~0.1 m per
         frame), and labelling pixels by proximity to lagging predictions splits one shoe
         between both feet or hands the swing foot to the standing one. Regions that merged
         (touching shoes) are not enough regions: then the predictions stay the centres.
         """
         p = self.params
-        K = len(self.roles)
         have = np.isfinite(centers).all(axis=1)
         if have.sum() < 2:
             return centers
-        x0, y0, x1, y1 = box
-        mask = (skin_roi[y0:y1, x0:x1] >= 0.5).view(np.uint8)
-        n, _, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
-        big = [j for j in range(1, n) if stats[j, 4] >= p.acquire_min_area_px]
-        if len(big) < have.sum() or len(big) > 8:
-            return centers
-        cc = cent[big] + (x0, y0)                                           # (R, 2) roi px
-        half = 0.5 * np.maximum(stats[big, 2], stats[big, 3])               # (R,)
+        # only where two labelling gates overlap can proximity labelling mix blobs up
         ks = np.flatnonzero(have)
-        d = np.linalg.norm(centers[ks, None, :] - cc[None, :, :], axis=-1)  # (k, R)
-        reach = d <= gate[ks, None] + half[None, :]
+        cs, gs = centers[ks], gate[ks]
+        d2 = ((cs[:, None, :] - cs[None, :, :]) ** 2).sum(-1)
+        near = d2 < (gs[:, None] + gs[None, :]) ** 2
+        if near.sum() <= len(ks):            # the diagonal only
+            return centers
+        # regions are searched in a window around the predicted blobs (2.5 gates), not the box
+        x0, y0, x1, y1 = box
+        reach_px = SNAP_WINDOW_GATES * gs.max()
+        wx0 = max(x0, int(cs[:, 0].min() - reach_px))
+        wy0 = max(y0, int(cs[:, 1].min() - reach_px))
+        wx1 = min(x1, int(cs[:, 0].max() + reach_px) + 1)
+        wy1 = min(y1, int(cs[:, 1].max() + reach_px) + 1)
+        if wx1 - wx0 < 2 or wy1 - wy0 < 2:
+            return centers
+        mask = (skin_roi[wy0:wy1, wx0:wx1] >= 0.5).view(np.uint8)
+        n, _, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+        big = np.flatnonzero(stats[1:, 4] >= p.acquire_min_area_px) + 1
+        if len(big) < len(ks):
+            return centers
+        cc = cent[big] + (wx0, wy0)                                         # (R, 2) roi px
+        half = 0.5 * np.maximum(stats[big, 2], stats[big, 3])               # (R,)
+        d = np.sqrt(((cs[:, None, :] - cc[None, :, :]) ** 2).sum(-1))      # (k, R)
+        reach = d <= gs[:, None] + half[None, :]
+        cand = np.flatnonzero(reach.any(axis=0))
+        if len(cand) < len(ks):
+            return centers
+        if len(cand) > SNAP_MAX_REGIONS:
+            cand = cand[np.argsort(d[:, cand].min(axis=0))[:SNAP_MAX_REGIONS]]
+        dd, rr = d[:, cand].tolist(), reach[:, cand].tolist()
         best, best_cost = None, np.inf
-        for perm in itertools.permutations(range(len(big)), len(ks)):
-            if all(reach[i, r] for i, r in enumerate(perm)):
-                cost = sum(d[i, r] for i, r in enumerate(perm))
+        for perm in itertools.permutations(range(len(cand)), len(ks)):
+            cost = 0.0
+            for i, r in enumerate(perm):
+                if not rr[i][r]:
+                    break
+                cost += dd[i][r]
+            else:
                 if cost < best_cost:
                     best, best_cost = perm, cost
         if best is None:
             return centers
         out = centers.copy()
-        out[ks] = cc[list(best)]
+        out[ks] = cc[cand[list(best)]]
         return out
 
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:

@@ -62,8 +62,8 @@ class PerceptionConfig:
     roi_margin_frac: float = 0.05         # ... + this fraction of the box's larger side
     min_person_area_px: int = 200         # smaller largest component: no person
     torso_ridge_frac: float = DEFAULT_RIDGE_FRAC
-    torso_head_shift_frac: float = 0.08   # torso point moved this fraction of the torso->head distance away
-                                          # from the head (the ridge sits above the pelvis-neck midpoint)
+    torso_head_shift_frac: float = 0.0    # torso point moved this fraction of the torso->head distance away
+                                          # from the head; the ridge's bias depends on the clip (docs), so off
     torso_step_px: int = 0                # distance-transform subsampling; 0 = 2 if width > 400 else 1
     background_update_rate: float = 0.0   # > 0: slow background update (per frame blend weight)
     close_px: int = 0                     # > 0: morphological closing (square, this size) of the change mask
@@ -196,8 +196,7 @@ class CameraPerceiver:
         if np.isfinite(txy).all():
             xy[_TORSO] = txy + (bx, by)
             if self.config.torso_head_shift_frac and np.isfinite(xy[_HEAD]).all():
-                # bias correction (docs/perception.md, Torso): the distance-transform ridge
-                # lies 7-10 % of the torso-head distance above the pelvis-neck midpoint
+                # bias correction (docs/perception.md, Torso), for a studio that measured it
                 xy[_TORSO] -= self.config.torso_head_shift_frac * (xy[_HEAD] - xy[_TORSO])
             cov[_TORSO] = tcov
             area[_TORSO] = float(np.count_nonzero(sil))

@@ -138,3 +138,15 @@ def test_optional_stages_keep_the_cues(changes):
         assert np.hypot(*(cues.xy[k] - sc.centres[name])) < 1.0, name
     sil = p.last_silhouette
     assert (sil & sc.mask).sum() / (sil | sc.mask).sum() > 0.97
+
+
+def test_torso_head_shift_moves_the_torso_point_away_from_the_head():
+    from dataclasses import replace
+
+    sc = make_scene(shadow=0.5)
+    plain = CameraPerceiver(CAM, sc.background).process(sc.image, 0)
+    shifted = CameraPerceiver(CAM, sc.background, replace(PerceptionConfig(), torso_head_shift_frac=0.1)).process(
+        sc.image, 0)
+    t, h = CUE_NAMES.index("torso"), CUE_NAMES.index("head")
+    np.testing.assert_allclose(shifted.xy[t], plain.xy[t] - 0.1 * (plain.xy[h] - plain.xy[t]), atol=1e-9)
+    np.testing.assert_array_equal(shifted.xy[:5], plain.xy[:5])
