@@ -77,6 +77,7 @@ class BlobFrame:
 _NO_SIL = np.zeros((1, 1), np.uint8)
 SNAP_WINDOW_GATES = 2.5     # region snap: search window around the predicted blobs, in gate radii
 SNAP_MAX_REGIONS = 5        # ... and at most this many candidate regions (nearest first)
+SNAP_NEAR_GATES = 2.0       # ... only for blobs nearer each other than this many times their two gates
 _NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
 _NAN_K = np.full(8, np.nan)
 
@@ -189,8 +190,8 @@ class BlobTracker:
         tracker has its own connected colour region within reach (gate + the region's half
         size), the regions are assigned to the blobs by the least total distance (all
         one-to-one assignments tried, K <= 3) and each blob is labelled around its region's
-        centre. Only done where two blobs' labelling gates overlap (elsewhere proximity
-        cannot mix them up, and a missing blob is re-acquired). A fast limb makes the prediction lag (a swinging foot moves ~0.1 m per
+        centre. Only done for blobs within ``SNAP_NEAR_GATES`` x their two gates of each
+        other (elsewhere proximity cannot mix them up, and a missing blob is re-acquired). A fast limb makes the prediction lag (a swinging foot moves ~0.1 m per
         frame), and labelling pixels by proximity to lagging predictions splits one shoe
         between both feet or hands the swing foot to the standing one. Regions that merged
         (touching shoes) are not enough regions: then the predictions stay the centres.
@@ -199,11 +200,12 @@ class BlobTracker:
         have = np.isfinite(centers).all(axis=1)
         if have.sum() < 2:
             return centers
-        # only where two labelling gates overlap can proximity labelling mix blobs up
+        # only where two blobs are near (their gates, doubled, overlap) can proximity
+        # labelling mix them up: a lagging prediction sits up to a gate off its blob
         ks = np.flatnonzero(have)
         cs, gs = centers[ks], gate[ks]
         d2 = ((cs[:, None, :] - cs[None, :, :]) ** 2).sum(-1)
-        near = d2 < (gs[:, None] + gs[None, :]) ** 2
+        near = d2 < (SNAP_NEAR_GATES * (gs[:, None] + gs[None, :])) ** 2
         if near.sum() <= len(ks):            # the diagonal only
             return centers
         # regions are searched in a window around the predicted blobs (2.5 gates), not the box
