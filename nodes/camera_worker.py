@@ -20,7 +20,7 @@ import threading
 import time
 
 from nodes.messages import Background, Cues, Frame, Keys, Prediction, Preview, Trigger
-from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, setup_logging
+from nodes.runtime import IdleGC, NodeRuntime, ThreadPriority, base_parser, load_rig, setup_logging
 from nodes.transport import direct_callback, open_session
 
 log = logging.getLogger(__name__)
@@ -120,6 +120,7 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
     rt.publish_status("running", force=True)
     gcs = IdleGC()
     gcs.start()
+    prio = ThreadPriority()       # deferred work at normal priority (when the node is real-time)
     used_pred = 0
     deferred = None      # (frame, grab, not-after monotonic s): work kept off the critical path
 
@@ -148,7 +149,10 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             rt.drops = slot.overwritten
             if deferred is not None and (trig is not None or preds.get(deferred[0] + 1) is not None
                                          or time.monotonic() >= deferred[2]):
+                if trig is None:
+                    prio.normal()        # off the critical path; else this frame needs it now
                 do_deferred()
+                prio.realtime_again()    # wait for the next trigger real-time (prompt wake-up)
                 deferred = None
             if trig is None:
                 gcs.idle()               # between frames: the next trigger is not here yet

@@ -182,3 +182,26 @@ def test_launcher_gives_real_time_priority_to_the_trigger_path_only(tmp_path, tm
     assert all(prio(Launcher(RunConfig(**common, speed=None)), n) == 0 for n in L.nodes)   # free-run
     assert all(prio(Launcher(RunConfig(**common, rt_priority=0)), n) == 0 for n in L.nodes)
     assert prio(Launcher(RunConfig(**common, rt_priority=30)), "sync") == 32
+
+
+@pytest.mark.skipif(not _can_rt(), reason="real-time scheduling needs root / CAP_SYS_NICE")
+def test_thread_priority_switches_only_the_calling_thread():
+    code = textwrap.dedent("""
+        import os, threading
+        from nodes.runtime import ThreadPriority, enter_realtime
+        normal = ThreadPriority(); normal.normal(); normal.realtime_again()   # not real-time: no-op
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER and not normal.realtime
+        ev = threading.Event()
+        th = threading.Thread(target=ev.wait, daemon=True); th.start()
+        assert enter_realtime(9)
+        p = ThreadPriority()
+        p.normal()
+        other = [int(t) for t in os.listdir("/proc/self/task") if int(t) != threading.get_native_id()]
+        print(os.sched_getscheduler(0) == os.SCHED_OTHER, all(os.sched_getscheduler(t) == os.SCHED_FIFO for t in other))
+        p.realtime_again()
+        print(os.sched_getscheduler(0) == os.SCHED_FIFO, os.sched_getparam(0).sched_priority)
+        ev.set()
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "True", "True", "9"]
