@@ -71,8 +71,9 @@ _NO_CUES = np.zeros(len(CUE_NAMES), dtype=bool)
 # the walking-side check swaps a pair only while the other pair is this many times its
 # margin on its own side
 SIDE_OTHER_MARGIN_FACTOR = 2.0
-# frames over which the walking-side check measures the turn rate of the walking direction
-SIDE_TURN_WINDOW_FRAMES = 9
+# the walking-side check takes the walking direction (and its turn rate) from the head's
+# path over this long (about one gait cycle)
+SIDE_TRACK_S = 1.0
 IK_MODES = ("analytic", "ccd")
 
 
@@ -95,11 +96,11 @@ class FusionConfig:
     bone_lengths: BoneLengths | None = None
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
-    side_walk_speed_mps: float = 0.6       # walking-side identity check (``_check_sides``) above this torso speed
+    side_walk_speed_mps: float = 0.6       # walking-side identity check (``_check_sides``) above this head speed
     side_max_turn_dps: float = 45.0        # ... and below this turn rate of the walking direction:
     side_margin_hands_m: float = 0.10      # a hand pair whose left one lies this far on the walk's right, or a
-    side_margin_feet_m: float = 0.03       # foot pair this far, ...
-    side_frames: int = 4                   # ... while the other pair is on its side, this many more frames than on
+    side_margin_feet_m: float = 0.05       # foot pair this far, ...
+    side_frames: int = 8                   # ... while the other pair is on its side, this many more frames than on
                                            # its own side, is swapped (0 = off)
     filter: FilterConfig = field(default_factory=FilterConfig)
     analytic: AnalyticConfig = field(default_factory=AnalyticConfig)
@@ -186,8 +187,7 @@ class BodyTracker:
         self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
         self._side_votes = np.zeros(len(LR_PAIRS), dtype=np.int64)
         self.side_swaps = 0   # left/right track swaps made by the walking-side check so far
-        self._side_headings: deque[float] = deque(maxlen=SIDE_TURN_WINDOW_FRAMES)
-        self._side_vel: np.ndarray | None = None
+        self._side_track: deque[np.ndarray] = deque(maxlen=max(3, int(round(SIDE_TRACK_S * config.fps)) + 1))
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
@@ -382,9 +382,9 @@ class BodyTracker:
         in those behind. Walking breaks the symmetry: people face where they walk, so the
         left hand/foot lies left of the head's horizontal velocity (up x heading), across
         the track (hands ~0.45 m apart, feet ~0.05-0.15 m; the along-track swing does not
-        enter). Only a brisk, straight walk counts: the head's smoothed horizontal speed
-        >= ``side_walk_speed_mps`` and its heading turning slower than
-        ``side_max_turn_dps`` over ``SIDE_TURN_WINDOW_FRAMES`` (the studio clips step
+        enter). Only a brisk, straight walk counts: the head's horizontal displacement over
+        the last ``SIDE_TRACK_S`` >= ``side_walk_speed_mps`` per second and its direction
+        turning slower than ``side_max_turn_dps`` between the two halves (the studio clips step
         sideways through turns, and a kick sways the body). A pair is voted wrong in a
         frame when it lies on the other side by more than its margin
         (``side_margin_hands_m``, ``side_margin_feet_m``) *while the other pair is clearly on
@@ -400,22 +400,25 @@ class BodyTracker:
                 self._side_votes[k] = 0
         if cfg.side_frames <= 0 or not self.filter.alive[C_HEAD]:
             return X
-        # the head's smoothed velocity: the head cue is the most precise (~5 mm), the torso
-        # cue jitters by centimetres, and a noisy heading leaks the steps' along-track
-        # length into "across"
-        vh = self.filter.vel[C_HEAD]
-        a_s = cfg.velocity_smoothing
-        self._side_vel = vh.copy() if self._side_vel is None else a_s * self._side_vel + (1 - a_s) * vh
-        v = self._side_vel
-        speed = float(np.hypot(v[0], v[1]))
-        heading = float(np.arctan2(v[1], v[0]))
-        self._side_headings.append(heading)
-        if not speed >= cfg.side_walk_speed_mps or len(self._side_headings) < self._side_headings.maxlen:
+        # the walking direction from the head's displacement over SIDE_TRACK_S (the head cue
+        # is the most precise, ~5 mm): a gait cycle's sway averages out, while an
+        # instantaneous heading a few degrees off leaks the feet's along-track separation
+        # (up to 0.6 m) into "across"
+        self._side_track.append(self.filter.pos[C_HEAD, :2].copy())
+        n = len(self._side_track)
+        if n < self._side_track.maxlen:
             return X
-        # turn rate over the window (per-frame heading differences are too noisy)
-        turn_dps = abs(np.degrees((heading - self._side_headings[0] + np.pi) % (2 * np.pi) - np.pi)) * \
-            cfg.fps / (len(self._side_headings) - 1)
-        if turn_dps > cfg.side_max_turn_dps:
+        half = n // 2
+        p0, pm, p1 = self._side_track[0], self._side_track[half], self._side_track[-1]
+        span_s = (n - 1) / cfg.fps
+        v = np.append((p1 - p0) / span_s, 0.0)
+        speed = float(np.hypot(v[0], v[1]))
+        if not speed >= cfg.side_walk_speed_mps:
+            return X
+        # turn rate: the heading of the window's second half against its first half
+        d0, d1 = pm - p0, p1 - pm
+        turn = abs(np.arctan2(d0[0] * d1[1] - d0[1] * d1[0], d0 @ d1))
+        if np.degrees(turn) / (0.5 * span_s) > cfg.side_max_turn_dps:
             return X
         left = np.array([-v[1], v[0], 0.0]) / speed          # world up x heading
         side = np.full(len(LR_PAIRS), np.nan)              # across-track offset, m (NaN: not measured)
