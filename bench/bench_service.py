@@ -7,6 +7,11 @@ afresh) looping the recording.
 
     python -m bench service                       # what the lead runs (60 s at 30 fps)
     python -m bench.bench_service --duration 10 --search-duration 5    # a quick look
+    python -m bench.bench_service --rt-priority 0  # without real-time scheduling
+
+The 30 fps run also prints where the latency went (the stage stamps of the poses, see
+docs/service.md "Latency"). Real-time scheduling needs root or CAP_SYS_NICE; the launcher's
+log says when it was not permitted.
 """
 
 from __future__ import annotations
@@ -40,7 +45,8 @@ def ensure_recording(path: Path) -> Path:
 
 def run_once(rec: Path, fps: float | None, duration_s: float, log_dir: Path, nice: int = 0,
              rt_priority: int | None = None) -> dict:
-    """One launcher run; ``fps=None`` = free-running (as fast as the pipeline answers)."""
+    """One launcher run; ``fps=None`` = free-running (as fast as the pipeline answers).
+    ``rt_priority`` None = the launcher's default (real-time at triggered rates)."""
     from mocap_rt.io.recording import Recording
     from nodes.launcher import Launcher, RunConfig
 
@@ -128,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
         if fps == 60.0:
             s = results["60fps"]
         else:
-            s = results[f"{fps:g}fps"] = run_once(rec, fps, args.search_duration, logs / f"{fps:g}", args.nice, args.rt_priority)
+            s = results[f"{fps:g}fps"] = run_once(rec, fps, args.search_duration, logs / f"{fps:g}", args.nice,
+                                                  args.rt_priority)
             print(_row(f"{fps:g} fps", s), flush=True)
         if s["lost"] == 0:
             best, failures = max(best, fps), 0
