@@ -9,6 +9,11 @@ the same goals and the same limits (angles are clamped after each step).
 * Damped pseudo-inverse with a null-space term:
   ``dtheta = J^T (J J^T + lambda^2 I)^-1 e + (I - J^+ J) k (theta_ref - theta)``,
   the secondary goal pulling towards the reference (measured) pose.
+  With ``limit_active_set`` an angle sitting on a bound whose step would push it
+  further out gets its column removed and the step is solved again (at most
+  ``_MAX_ACTIVE_SET_PASSES`` times): the other angles then take up its share
+  instead of losing it to the clamp. Off by default (the plain baseline); the CCD's
+  polish (``CcdConfig.polish_iterations``) turns it on.
 
 The error ``e`` stacks, per effector, the position error (metres) and the rotation
 vector of ``R_goal R^T`` times ``body_scale_m`` (so radians become commensurate metres).
@@ -39,6 +44,7 @@ class JacobianConfig:
     body_scale_m: float = 0.5
     use_limits: bool = True
     angle_tolerance_deg: float = 45.0
+    limit_active_set: bool = False       # dls: drop the columns of angles held at a bound (see below)
 
 
 @njit(cache=True, nogil=True)
@@ -61,10 +67,14 @@ def _rotvec(M):
     return ax * ang
 
 
+_MAX_ACTIVE_SET_PASSES = 4      # re-solves per iteration with the blocked columns removed
+_BOUND_EPS_RAD = 1e-12          # an angle within this of a bound is "at" it
+
+
 @njit(cache=True, nogil=True)
 def _jacobian_solve(parents, offsets, rest_local, root_pos, angles, active_idx, lo, hi, effectors, goal_pos,
                     goal_rot, w_pos, w_rot, below, eff_below, max_iter, tol_p, tol_o, use_dls, damping, gain,
-                    max_step, scale, reference, perr, oerr):
+                    max_step, scale, reference, active_set, perr, oerr):
     J = parents.shape[0]
     E = effectors.shape[0]
     n = active_idx.shape[0]
@@ -115,15 +125,31 @@ def _jacobian_solve(parents, offsets, rest_local, root_pos, angles, active_idx, 
                 for i in range(3):
                     Jac[6 * e + 3 + i, col] = w_rot[e] * scale * a[i]
         if use_dls:
-            A = Jac @ Jac.T + damping * damping * np.eye(6 * E)
-            y = np.linalg.solve(A, err)
-            d = Jac.T @ y
-            # null-space term: (I - J^T A^-1 J) k (ref - theta)
-            z = np.empty(n)
-            for col in range(n):
-                z[col] = gain * (reference[active_idx[col, 0], active_idx[col, 1]]
-                                 - angles[active_idx[col, 0], active_idx[col, 1]])
-            d += z - Jac.T @ np.linalg.solve(A, Jac @ z)
+            free = np.ones(n, dtype=np.bool_)
+            d = np.zeros(n)
+            for _pass in range(_MAX_ACTIVE_SET_PASSES if active_set else 1):
+                A = Jac @ Jac.T + damping * damping * np.eye(6 * E)
+                y = np.linalg.solve(A, err)
+                d = Jac.T @ y
+                # null-space term: (I - J^T A^-1 J) k (ref - theta)
+                z = np.empty(n)
+                for col in range(n):
+                    z[col] = 0.0 if not free[col] else gain * (reference[active_idx[col, 0], active_idx[col, 1]]
+                                                               - angles[active_idx[col, 0], active_idx[col, 1]])
+                d += z - Jac.T @ np.linalg.solve(A, Jac @ z)
+                if not active_set:
+                    break
+                blocked = False
+                for col in range(n):
+                    j = active_idx[col, 0]
+                    k = active_idx[col, 1]
+                    if free[col] and ((d[col] < 0 and angles[j, k] <= lo[j, k] + _BOUND_EPS_RAD)
+                                      or (d[col] > 0 and angles[j, k] >= hi[j, k] - _BOUND_EPS_RAD)):
+                        free[col] = False
+                        Jac[:, col] = 0.0
+                        blocked = True
+                if not blocked:
+                    break
         else:
             g = Jac.T @ err
             jjte = Jac @ g
@@ -161,5 +187,5 @@ def solve_jacobian(model: BodyModel, root_pos: np.ndarray, angles0: np.ndarray, 
                              effectors, gp, gr, wpv, wrv, below, eff_below, int(config.max_iterations),
                              config.tol_position_m, np.radians(config.tol_orientation_deg), config.method == "dls",
                              config.damping, config.null_space_gain, config.max_step_rad, config.body_scale_m,
-                             ref, perr, oerr)
+                             ref, config.limit_active_set, perr, oerr)
     return IkResult(angles, int(it), perr.copy(), np.degrees(oerr), bool(ok))

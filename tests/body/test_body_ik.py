@@ -24,16 +24,21 @@ def sim_pose(model, rng, noise_deg=20.0):
     return truth, np.clip(start, lo, hi)
 
 
-@pytest.mark.parametrize("solver", ["ccd", "dls"])
+@pytest.mark.parametrize("solver", ["ccd", "hybrid", "dls"])
 def test_ik_reaches_reachable_goals_within_limits(solver):
     model = body_model()
     rng = np.random.default_rng(11)
     ok = 0
     fails = []
-    for _ in range(12):
-        truth, start = sim_pose(model, rng)
+    n_trials = 12
+    for _ in range(n_trials):
+        # +-30 deg: the pure CCD stalls in 2 of these 12 (at a shoulder limit); +-20 deg for the others
+        truth, start = sim_pose(model, rng, noise_deg=30.0 if solver == "hybrid" else 20.0)
         P, R = forward_kinematics(model, np.zeros(3), truth)
-        if solver == "ccd":
+        if solver == "ccd":  # the pure thesis-style CCD
+            res = solve_ccd(model, np.zeros(3), start, EFF, P[EFF], R[EFF], reference=start,
+                            config=CcdConfig(polish=False))
+        elif solver == "hybrid":  # the default: CCD + damped-least-squares polish
             res = solve_ccd(model, np.zeros(3), start, EFF, P[EFF], R[EFF], reference=start)
         else:
             res = solve_jacobian(model, np.zeros(3), start, EFF, P[EFF], R[EFF], reference=start)
@@ -51,7 +56,8 @@ def test_ik_reaches_reachable_goals_within_limits(solver):
         assert np.all(np.abs(res.angles - start)[model.dof] <= np.radians(45.0) + 1e-12)
         assert np.all(res.angles[~model.dof] == 0)
         np.testing.assert_allclose(np.linalg.det(R2), 1.0, atol=1e-12)
-    assert ok >= 11, fails  # CCD can rarely stall in a local optimum at a limit (reported by bench_ik)
+    # pure CCD can rarely stall in a local optimum at a limit (reported by bench_ik); the hybrid may not
+    assert ok >= (n_trials - 1 if solver == "ccd" else n_trials), fails
 
 
 def test_ccd_single_joint_step_is_the_closed_form_optimum():
