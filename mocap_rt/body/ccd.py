@@ -183,6 +183,15 @@ def _errors(pos, rot, effectors, goal_pos, goal_rot, w_pos, w_rot, perr, oerr, a
 
 
 @njit(cache=True, nogil=True)
+def _within(perr, oerr, tol_p, tol_o):
+    """True when every effector is within the position and orientation tolerances."""
+    for e in range(perr.shape[0]):
+        if perr[e] > tol_p or oerr[e] > tol_o:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
 def _ccd(parents, offsets, rest_local, root_pos, angles, active, lo, hi, effectors, goal_pos, goal_rot,
          w_pos, w_rot, below, eff_below, max_iter, tol_p, tol_o, adaptive, wp0, wo0, d_ref, th_ref, scale,
          relax, perr, oerr):
@@ -208,10 +217,7 @@ def _ccd(parents, offsets, rest_local, root_pos, angles, active, lo, hi, effecto
     for it in range(max_iter + 1):
         _fk3(parents, offsets, rest_local, root_pos, angles, pos, rot, tmp, tmp2)
         _errors(pos, rot, effectors, goal_pos, goal_rot, w_pos, w_rot, perr, oerr, axerr)
-        done = True
-        for e in range(E):
-            if perr[e] > tol_p or oerr[e] > tol_o:
-                done = False
+        done = _within(perr, oerr, tol_p, tol_o)
         if done or it == max_iter:
             return it, done
         for e in range(E):

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mocap_rt.body.ccd import IkResult, _errors, _fk3, _goal_arrays, allowed_intervals, subtree_masks
+from mocap_rt.body.ccd import IkResult, _errors, _fk3, _goal_arrays, _within, allowed_intervals, subtree_masks
 from mocap_rt.body.skeleton import N_JOINTS, BodyModel
 
 
@@ -89,10 +89,7 @@ def _jacobian_solve(parents, offsets, rest_local, root_pos, angles, active_idx, 
     for it in range(max_iter + 1):
         _fk3(parents, offsets, rest_local, root_pos, angles, pos, rot, tmp, tmp2)
         _errors(pos, rot, effectors, goal_pos, goal_rot, w_pos, w_rot, perr, oerr, axerr)
-        done = True
-        for e in range(E):
-            if perr[e] > tol_p or oerr[e] > tol_o:
-                done = False
+        done = _within(perr, oerr, tol_p, tol_o)
         if done or it == max_iter:
             return it, done
         for e in range(E):
