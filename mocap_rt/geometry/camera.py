@@ -23,7 +23,9 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-1
 _EYE3 = np.eye(3)
 
 
-def _as_points(points: np.ndarray, dim: int, name: str) -> np.ndarray:
+def as_points(points: np.ndarray, dim: int, name: str) -> np.ndarray:
+    """(N, dim) float64 view of ``points`` (a single (dim,) point becomes (1, dim));
+    ValueError naming ``name`` for any other shape."""
     arr = np.asarray(points, dtype=np.float64)
     if arr.ndim == 1 and arr.shape[0] == dim:
         arr = arr[None, :]
@@ -149,7 +151,7 @@ class Camera:
     # --------------------------------------------------------------- projection
     def to_camera(self, points_world: np.ndarray) -> np.ndarray:
         """(N, 3) world points -> (N, 3) camera-frame points, metres."""
-        pts = _as_points(points_world, 3, "points_world")
+        pts = as_points(points_world, 3, "points_world")
         return pts @ self.R.T + self.t
 
     def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
@@ -186,7 +188,7 @@ class Camera:
 
     def undistort_pixels(self, uv: np.ndarray) -> np.ndarray:
         """(N, 2) distorted pixels -> (N, 2) ideal normalised coordinates (x/z, y/z)."""
-        uv = _as_points(uv, 2, "uv")
+        uv = as_points(uv, 2, "uv")
         if uv.shape[0] == 0:
             return np.zeros((0, 2))
         # Remove K (skew included, as project() applies it) to get distorted normalised xy.
@@ -215,7 +217,7 @@ class Camera:
 
     def in_image(self, uv: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
         """(N,) bool: pixel inside the image (pixel centres at integers)."""
-        uv = _as_points(uv, 2, "uv")
+        uv = as_points(uv, 2, "uv")
         u, v = uv[:, 0], uv[:, 1]
         with np.errstate(invalid="ignore"):
             return (

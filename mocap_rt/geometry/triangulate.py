@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mocap_rt.geometry.camera import MIN_DEPTH_M, Camera
+from mocap_rt.geometry.camera import MIN_DEPTH_M, Camera, as_points
 
 logger = logging.getLogger(__name__)
 
@@ -44,15 +44,6 @@ __all__ = [
 
 
 # ----------------------------------------------------------------------------- checks
-def _vectors(a: np.ndarray, name: str, last: int = 3) -> np.ndarray:
-    arr = np.asarray(a, dtype=np.float64)
-    if arr.ndim == 1 and arr.shape[0] == last:
-        arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != last:
-        raise ValueError(f"{name} must have shape (N, {last}), got {np.shape(a)}")
-    return arr
-
-
 def _views(a: np.ndarray, name: str, last: int) -> np.ndarray:
     arr = np.asarray(a, dtype=np.float64)
     if arr.ndim != 3 or arr.shape[2] != last:
@@ -91,7 +82,7 @@ def closest_point_ray1(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.nd
     ``T = o1 - ((d1 x m2).(o1 x m2 - n2)) / |d1 x m2|^2 d1`` with
     ``m = d / sqrt(1 + |o x d|^2)``, ``n = (o x d) / sqrt(1 + |o x d|^2)``.
     """
-    o1, d1, o2, d2 = (_vectors(v, n) for v, n in ((o1, "o1"), (d1, "d1"), (o2, "o2"), (d2, "d2")))
+    o1, d1, o2, d2 = (as_points(v, 3, n) for v, n in ((o1, "o1"), (d1, "d1"), (o2, "o2"), (d2, "d2")))
     d1, d2 = _unit(d1), _unit(d2)
     moment2 = np.cross(o2, d2)                                      # (N, 3)
     scale2 = np.sqrt(1.0 + np.einsum("ij,ij->i", moment2, moment2))[:, None]
@@ -256,7 +247,7 @@ def refine_points(cameras: Sequence[Camera], uv: np.ndarray, X0: np.ndarray,
 
     uv = _check_cameras(cameras, uv)
     C, N, _ = uv.shape
-    X0 = _vectors(X0, "X0")
+    X0 = as_points(X0, 3, "X0")
     if X0.shape[0] != N:
         raise ValueError(f"X0 has {X0.shape[0]} points but uv has {N}")
     w = _weights(weights, (C, N))
@@ -293,7 +284,7 @@ def reprojection_residuals(cameras: Sequence[Camera], X: np.ndarray, uv: np.ndar
     missing or the point is behind that camera.
     """
     uv = _check_cameras(cameras, uv)
-    X = _vectors(X, "X")
+    X = as_points(X, 3, "X")
     if X.shape[0] != uv.shape[1]:
         raise ValueError(f"X has {X.shape[0]} points but uv has {uv.shape[1]}")
     out = np.empty(uv.shape[:2])
