@@ -1,9 +1,5 @@
 """BVH reader/FK/writer against the `bvh` PyPI parser, hand-built rotations and round trips."""
 
-import os
-import signal
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -128,7 +124,7 @@ def test_bad_files_raise_clear_errors(tmp_path, data_dir, mutate, words):
         assert w in str(err.value)
 
 
-def test_stream_writer_survives_sigkill(tmp_path, data_dir):
+def test_stream_writer_survives_sigkill(tmp_path, data_dir, kill_when_ready):
     src = data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh"
     out = tmp_path / "live.bvh"
     script = textwrap.dedent(f"""
@@ -143,12 +139,7 @@ def test_stream_writer_survives_sigkill(tmp_path, data_dir):
             if i > 250:
                 time.sleep(0.0005)
     """)
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "ready"
-        os.kill(proc.pid, signal.SIGKILL)
-    finally:
-        proc.wait(timeout=30)
+    kill_when_ready(script)
     back = read_bvh(out)
     assert back.n_frames >= 200 and back.n_frames % 100 == 0
     clip = read_bvh(src)

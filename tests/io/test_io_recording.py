@@ -1,9 +1,5 @@
 """The recorded stream format: round trip, random access, bad files, crash safety."""
 
-import os
-import signal
-import subprocess
-import sys
 import textwrap
 
 import numpy as np
@@ -104,7 +100,7 @@ def test_not_a_recording(tmp_path):
         Recording(tmp_path)
 
 
-def test_crash_safety_sigkill(tmp_path):
+def test_crash_safety_sigkill(tmp_path, kill_when_ready):
     out = tmp_path / "live"
     script = textwrap.dedent(f"""
         import time, numpy as np
@@ -120,12 +116,7 @@ def test_crash_safety_sigkill(tmp_path):
             if f > 34:
                 time.sleep(0.002)
     """)
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "ready"
-        os.kill(proc.pid, signal.SIGKILL)
-    finally:
-        proc.wait(timeout=30)
+    kill_when_ready(script)
     rec = Recording(out)
     assert rec.n_frames >= 30 and rec.n_frames % 10 == 0   # whole 1 s segments kept
     rows = len((out / "frames.csv").read_text().splitlines()) - 1
