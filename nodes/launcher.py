@@ -83,21 +83,24 @@ def _ephemeral_range() -> tuple[int, int]:
 
 
 _rng = random.Random()
+_handed_out: set[int] = set()   # never the same port twice: the nodes of one service bind later
 
 
 def free_port() -> int:
-    """A loopback TCP port that is free now and outside the ephemeral range, so that no
-    outgoing connection of another process can take it before our node binds it."""
+    """A loopback TCP port that is free now, outside the ephemeral range (so that no outgoing
+    connection of another process can take it before our node binds it) and not handed out
+    before by this process (the ports of one service are all drawn before any node binds)."""
     lo_e, hi_e = _ephemeral_range()
     for _ in range(1000):
         port = _rng.randrange(*PORT_RANGE)
-        if lo_e <= port <= hi_e:
+        if lo_e <= port <= hi_e or port in _handed_out:
             continue
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
             try:
                 s.bind(("127.0.0.1", port))
             except OSError:
                 continue
+            _handed_out.add(port)
             return port
     raise RuntimeError("no free TCP port found for the service")
 
@@ -278,7 +281,7 @@ class Launcher:
 
     # ------------------------------------------------------------ processes
     def _spawn(self, node: NodeProc) -> None:
-        logf = open(self.log_dir / f"{node.name}.log", "ab")
+        logf = open(self.log_path(node.name), "ab")
         # one compute thread per node: the nodes already run in parallel, and library thread
         # pools in each of them (OpenCV, numba, BLAS) would only oversubscribe the cores
         env = dict(os.environ, PYTHONUNBUFFERED="1", **SINGLE_THREAD_ENV)
@@ -288,6 +291,17 @@ class Launcher:
         logf.close()
         node.cpu_last_s = 0.0
         log.debug("started %s pid %d", node.name, node.proc.pid)
+
+    def log_path(self, name: str) -> Path:
+        return self.log_dir / f"{name}.log"
+
+    def log_tail(self, name: str, lines: int = 15) -> str:
+        """The last lines of a node's log, indented, for an error message ('' if none)."""
+        try:
+            text = self.log_path(name).read_text(errors="replace").splitlines()[-lines:]
+        except OSError:
+            return ""
+        return "".join(f"\n  | {line}" for line in text)
 
     def pid(self, name: str) -> int:
         return self.nodes[name].proc.pid
@@ -320,7 +334,8 @@ class Launcher:
             n.cpu_last_s = 0.0
             if not self.cfg.restart or n.restarts >= RESTART_LIMIT:
                 n.finished = True
-                log.error("%s exited with %s; not restarted (see %s)", n.name, rc, self.log_dir / f"{n.name}.log")
+                log.error("%s exited with %s; not restarted (see %s)%s", n.name, rc, self.log_path(n.name),
+                          self.log_tail(n.name))
                 continue
             n.restarts += 1
             log.warning("%s exited with %s; restarting (%d)", n.name, rc, n.restarts)
@@ -350,7 +365,7 @@ class Launcher:
                 n = self.nodes[name]
                 if n.proc.poll() is not None and (not self.cfg.restart or n.restarts >= 2):
                     raise RuntimeError(f"{name} failed at start (exit {n.proc.returncode}); "
-                                       f"see {self.log_dir / (name + '.log')}")
+                                       f"see {self.log_path(name)}{self.log_tail(name)}")
                 if self.monitor.node_state(name) in ("ready", "running"):
                     waiting.remove(name)
             self.supervise()
