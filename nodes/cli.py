@@ -41,6 +41,9 @@ def register(subparsers) -> None:
     p.add_argument("--stats", type=Path, default=None, help="write run statistics JSON here")
     p.add_argument("--deadline-frac", type=float, default=0.8,
                    help="fusion waits for late cameras at most this fraction of a frame period")
+    p.add_argument("--bones", type=Path, default=None, metavar="TOML",
+                   help="the subject's bone lengths ([bones] table, e.g. bones.toml of mocap-rt process); "
+                        "default: estimated from the first seconds of the capture")
     p.add_argument("--preview-every", type=int, default=None,
                    help="camera image to the viewer every N frames (default 3 with --rerun)")
     p.add_argument("--no-restart", action="store_true", help="do not restart nodes that die")
@@ -74,11 +77,15 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"rig file {rig} not found")
     if kind in ("replay", "fake") and not (Path(value) / "recording.toml").is_file():
         raise FileNotFoundError(f"--source {args.source}: {value} is not a recording directory (no recording.toml)")
+    if args.bones is not None:
+        from mocap_rt.body.skeleton import read_bone_lengths
+
+        read_bone_lengths(args.bones)       # a bad file is reported here, not by a dying node
     if args.duration is not None and args.duration <= 0:
         raise ValueError("--duration must be > 0")
     cfg = RunConfig(rig_path=Path(rig), source=args.source, speed=args.speed, duration_s=args.duration,
                     rerun=args.rerun, record=args.record, stats=args.stats, deadline_frac=args.deadline_frac,
-                    preview_every=args.preview_every, restart=not args.no_restart, log_dir=args.log_dir,
+                    bones=args.bones,                     preview_every=args.preview_every, restart=not args.no_restart, log_dir=args.log_dir,
                     status_line=not args.quiet, nice=args.nice,
                     rt_priority=args.rt_priority)
     launcher = Launcher(cfg)

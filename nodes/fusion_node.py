@@ -19,6 +19,7 @@ import queue
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -153,11 +154,12 @@ WARM_UP_FRAMES = 3
 WARM_UP_COV_PX2 = 4.0
 
 
-def make_tracker(rig, fps: float = 30.0):
-    """D's ``BodyTracker`` with its default config at the stream's frame rate."""
+def make_tracker(rig, fps: float = 30.0, bone_lengths=None):
+    """D's ``BodyTracker`` with its default config at the stream's frame rate; the bone
+    lengths are estimated from the first seconds of cues unless given."""
     from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
 
-    return BodyTracker(rig, FusionConfig(fps=fps))
+    return BodyTracker(rig, FusionConfig(fps=fps, bone_lengths=bone_lengths))
 
 
 def warm_up(rig, fps: float = 30.0) -> float:
@@ -234,7 +236,7 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
     pose = Pose(keys.rig, pf.frame, pf.t_trigger_mono_ns, time.monotonic_ns(),
                 np.asarray(result.cues_3d, np.float64), np.asarray(result.cue_valid, bool),
                 np.asarray(result.joints, np.float64), np.asarray(result.bvh_frame, np.float64),
-                used, missing, timings)
+                used, missing, tracker.lengths.as_array(), timings)
     pose_pub.put(pose.to_msgpack())
     if predictions is None:
         t4 = time.perf_counter()
@@ -330,6 +332,9 @@ def build_parser():
                    help="wait for late cameras at most this fraction of the frame period")
     p.add_argument("--fps", type=float, default=None,
                    help="frame rate of the frame ids (default rig metadata fps or 30)")
+    p.add_argument("--bones", type=Path, default=None, metavar="TOML",
+                   help="the subject's bone lengths ([bones] table); default: estimated from the "
+                        "first seconds of cues")
     return p
 
 
@@ -340,6 +345,9 @@ def main(argv: list[str] | None = None) -> int:
     if not 0.0 < args.deadline_frac <= 1.0:
         raise ValueError(f"--deadline-frac must be in (0, 1], got {args.deadline_frac}")
     rig = load_rig(args)
+    from mocap_rt.body.skeleton import read_bone_lengths
+
+    bones = read_bone_lengths(args.bones) if args.bones else None   # fails before joining
     keys = Keys(args.rig_name)
     with open_session(args) as session:
         rt = NodeRuntime(session, keys, args.node, "fusion")
@@ -347,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
         rt.publish_status("starting", force=True)
         fps = args.fps or float(rig.metadata.get("fps", 30.0))
         log.info("fusion: warm-up took %.2f s", warm_up(rig, fps))
-        tracker = make_tracker(rig, fps)
+        tracker = make_tracker(rig, fps, bones)
         rt.enter_realtime(args.rt_priority)
         rt.publish_status("ready", force=True)
         run_fusion(session, keys, rig, tracker, rt, args.deadline_frac)

@@ -59,6 +59,7 @@ class RunConfig:
     stats: Path | None = None
     rig_name: str | None = None
     deadline_frac: float = 0.8
+    bones: Path | None = None          # the subject's bone lengths TOML (default: estimated live)
     preview_every: int | None = None
     restart: bool = True
     log_dir: Path | None = None
@@ -252,7 +253,8 @@ class Launcher:
         if cfg.rerun:
             plan.append(("viewer", "viewer", ["-m", "nodes.viewer", "--rerun", cfg.rerun]))
         plan.append(("fusion", "fusion", ["-m", "nodes.fusion_node", "--deadline-frac", str(cfg.deadline_frac),
-                                          "--fps", str(self.base_fps)]))
+                                          "--fps", str(self.base_fps)]
+                     + (["--bones", str(cfg.bones)] if cfg.bones else [])))
         for cam, src in self._worker_sources().items():
             argv = ["-m", "nodes.camera_worker", "--camera", cam, "--source", src, "--fps", str(self.base_fps),
                     "--preview-every", str(preview)]

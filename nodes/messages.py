@@ -38,12 +38,13 @@ from typing import ClassVar
 import msgpack
 import numpy as np
 
+from mocap_rt.body.skeleton import N_BONE_VALUES
 from mocap_rt.cues import N_CUES, CameraCues, CuePrediction
 from mocap_rt.names import JOINT_NAMES
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2          # 2: Pose carries the bone lengths of its skeleton
 KEY_ROOT = "mocap"
 # names that become key-expression chunks: no '/', '*', '$', '?', '#' or spaces
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
@@ -346,6 +347,9 @@ class Pose(_Message):
     bvh_frame : (n_channels,) float64 BVH motion values of the tracker's skeleton.
     cameras_used : cameras whose cues went into this frame; cameras_missing : rig cameras
     that did not answer before the deadline (dead or late).
+    bones : (N_BONE_VALUES,) float64, ``BoneLengths.as_array()`` of the skeleton that
+    ``joints`` and ``bvh_frame`` belong to (it changes once, when the tracker has estimated
+    the subject's lengths; the recorder writes the BVH hierarchy from it).
     """
 
     TYPE: ClassVar[str] = "pose"
@@ -360,6 +364,7 @@ class Pose(_Message):
     bvh_frame: np.ndarray
     cameras_used: tuple[str, ...]
     cameras_missing: tuple[str, ...]
+    bones: np.ndarray
     timings_ms: dict = field(default_factory=dict)
 
     def body(self) -> dict:
@@ -370,6 +375,7 @@ class Pose(_Message):
                 "joints": encode_array(np.asarray(self.joints, np.float64)),
                 "bvh_frame": encode_array(np.asarray(self.bvh_frame, np.float64)),
                 "cameras_used": list(self.cameras_used), "cameras_missing": list(self.cameras_missing),
+                "bones": encode_array(np.asarray(self.bones, np.float64)),
                 "timings_ms": {str(k): float(v) for k, v in self.timings_ms.items()}}
 
     @classmethod
@@ -382,7 +388,8 @@ class Pose(_Message):
                    decode_array(b.get("cues_3d"), "cues_3d", (N_CUES, 3), "<f8"),
                    decode_array(b.get("cue_valid"), "cue_valid", (N_CUES,), "|b1"),
                    decode_array(b.get("joints"), "joints", (N_JOINTS, 3), "<f8"), bvh,
-                   _names(b, "cameras_used"), _names(b, "cameras_missing"), _float_map(b, "timings_ms"))
+                   _names(b, "cameras_used"), _names(b, "cameras_missing"),
+                   decode_array(b.get("bones"), "bones", (N_BONE_VALUES,), "<f8"), _float_map(b, "timings_ms"))
 
 
 @dataclass(frozen=True, slots=True)

@@ -4,7 +4,10 @@ Outputs in ``--out DIR``:
 
 (a second recorder run in the same directory writes ``poses_001.*``, ``stream_001`` ...)
 
-* ``poses.bvh`` — ``BvhStreamWriter`` on the tracker's skeleton, flushed every second;
+* ``poses.bvh`` — ``BvhStreamWriter`` on the skeleton of the poses (their ``bones``), flushed
+  every second; when fusion has estimated the subject's bone lengths the file is given the
+  new hierarchy (rewritten once, atomically) and ``bones.toml`` is written for later sessions
+  (``mocap-rt run --bones``);
 * ``poses.npz`` — every pose so far (see ``PoseLog``), rewritten atomically every
   ``SNAPSHOT_PERIOD_S`` (write to a temporary file, then rename);
 * ``stream/`` — with ``--raw``: the cameras' raw images via ``RecordingWriter`` (the
@@ -156,113 +159,123 @@ class RawStream:
         self.writer.close()
 
 
-def output_paths(out_dir: Path) -> tuple[Path, Path, Path]:
-    """(poses.npz, poses.bvh, stream/) in ``out_dir``; when a previous run (or a recorder
-    that crashed and was restarted) left files there, new names ``poses_001.npz`` ... are
-    used so that nothing already recorded is ever overwritten."""
+def output_paths(out_dir: Path) -> tuple[Path, Path, Path, Path]:
+    """(poses.npz, poses.bvh, bones.toml, stream/) in ``out_dir``; when a previous run (or a
+    recorder that crashed and was restarted) left files there, new names ``poses_001.npz``
+    ... are used so that nothing already recorded is ever overwritten."""
     for i in range(10_000):
         sfx = "" if i == 0 else f"_{i:03d}"
-        paths = (out_dir / f"poses{sfx}.npz", out_dir / f"poses{sfx}.bvh", out_dir / f"{STREAM_DIR}{sfx}")
+        paths = (out_dir / f"poses{sfx}.npz", out_dir / f"poses{sfx}.bvh", out_dir / f"bones{sfx}.toml",
+                 out_dir / f"{STREAM_DIR}{sfx}")
         if not any(p.exists() for p in paths):
             return paths
     raise FileExistsError(f"{out_dir}: too many recordings already")
 
 
-def bvh_skeleton_for(rig, fps: float):
-    """The BVH skeleton the fusion node's tracker writes motion for."""
-    from nodes.fusion_node import make_tracker
+class PoseFiles:
+    """The pose outputs of one recording: NPZ log, streamed BVH, bones TOML."""
 
-    return make_tracker(rig, fps).bvh_skeleton
+    def __init__(self, npz_path: Path, bvh_path: Path, bones_path: Path, camera_names: list[str],
+                 fps: float) -> None:
+        self.log = PoseLog(npz_path, camera_names)
+        self.bvh_path, self.bones_path, self.fps = bvh_path, bones_path, fps
+        self.bvh = None                  # opened on the first pose, with its skeleton
+        self._bones: np.ndarray | None = None
+        self.last_frame = -1
+
+    def add(self, pose: Pose) -> None:
+        """Record one pose; ValueError (nothing written) for an old frame or bad values."""
+        from mocap_rt.body.bvh_export import bvh_skeleton_of
+        from mocap_rt.body.skeleton import BoneLengths, write_bone_lengths
+        from mocap_rt.io.bvh import BvhStreamWriter
+
+        if pose.frame <= self.last_frame:
+            raise ValueError(f"pose {pose.frame} is not newer than {self.last_frame}")
+        if self._bones is None or not np.array_equal(pose.bones, self._bones):
+            lengths = BoneLengths.from_array(pose.bones)
+            skeleton = bvh_skeleton_of(lengths)
+            if len(pose.bvh_frame) != skeleton.n_channels:
+                raise ValueError(f"pose {pose.frame}: {len(pose.bvh_frame)} BVH values, "
+                                 f"the skeleton has {skeleton.n_channels}")
+            if self.bvh is None:
+                self.bvh = BvhStreamWriter(self.bvh_path, skeleton, 1.0 / self.fps)
+            else:
+                self.bvh.set_skeleton(skeleton)
+            write_bone_lengths(lengths, self.bones_path)
+            self._bones = np.array(pose.bones)
+        self.bvh.write(pose.bvh_frame)
+        self.log.add(pose)
+        self.last_frame = pose.frame
+
+    def close(self) -> None:
+        self.log.snapshot()
+        if self.bvh is not None:
+            self.bvh.close()
 
 
 def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool, rt: NodeRuntime) -> None:
     """Record until ``rt.stop``; every file is closed cleanly on the way out."""
-    from mocap_rt.io.bvh import BvhStreamWriter
-
     out_dir.mkdir(parents=True, exist_ok=True)
-    npz_path, bvh_path, stream_path = output_paths(out_dir)
-    poses = PoseLog(npz_path, list(rig.names))
-    bvh = BvhStreamWriter(bvh_path, bvh_skeleton_for(rig, fps), 1.0 / fps)
+    npz_path, bvh_path, bones_path, stream_path = output_paths(out_dir)
+    poses = PoseFiles(npz_path, bvh_path, bones_path, list(rig.names), fps)
     stream = RawStream(stream_path, rig, fps) if raw else None
     log.info("recorder: writing %s, %s%s", npz_path, bvh_path, f", {stream_path}" if raw else "")
     inbox: queue.SimpleQueue = queue.SimpleQueue()
 
-    def on_pose(sample) -> None:
-        msg = rt.decoder.decode(sample.payload, Pose)
-        if msg is not None:
-            inbox.put(msg)
+    def subscriber(msg_type):
+        def on_sample(sample) -> None:
+            msg = rt.decoder.decode(sample.payload, msg_type)
+            if msg is not None:
+                inbox.put(msg)
+        return on_sample
 
-    def on_frame(sample) -> None:
-        msg = rt.decoder.decode(sample.payload, Frame)
-        if msg is not None:
-            inbox.put(msg)
+    def handle(msg) -> None:
+        if isinstance(msg, Pose):
+            t0 = time.perf_counter()
+            try:
+                poses.add(msg)
+            except ValueError as exc:
+                rt.drops += 1
+                log.warning("recorder: pose not written: %s", exc)
+            rt.meter.add((time.perf_counter() - t0) * 1e3)
+        elif isinstance(msg, Frame) and stream is not None:
+            stream.on_frame(msg, time.monotonic())
+        elif isinstance(msg, Background) and stream is not None:
+            stream.on_background(msg)
 
-    def on_background(sample) -> None:
-        msg = rt.decoder.decode(sample.payload, Background)
-        if msg is not None:
-            inbox.put(msg)
-
-    subs = [session.declare_subscriber(keys.pose, on_pose)]
+    subs = [session.declare_subscriber(keys.pose, subscriber(Pose))]
     if raw:
-        subs += [session.declare_subscriber(keys.frame(), on_frame),
-                 session.declare_subscriber(keys.background(), on_background)]
+        subs += [session.declare_subscriber(keys.frame(), subscriber(Frame)),
+                 session.declare_subscriber(keys.background(), subscriber(Background))]
     rt.publish_status("running", force=True)
     last_snap = time.monotonic()
-    last_frame = -1
     try:
         while not rt.stop.is_set():
             try:
-                msg = inbox.get(timeout=0.1)
+                handle(inbox.get(timeout=0.1))
             except queue.Empty:
-                msg = None
-            t0 = time.perf_counter()
-            if isinstance(msg, Pose):
-                if msg.frame > last_frame:
-                    poses.add(msg)
-                    try:
-                        bvh.write(msg.bvh_frame)
-                    except ValueError as exc:
-                        rt.drops += 1
-                        log.warning("recorder: pose %d not written to BVH: %s", msg.frame, exc)
-                    last_frame = msg.frame
-                else:
-                    rt.drops += 1
-                rt.meter.add((time.perf_counter() - t0) * 1e3)
-            elif isinstance(msg, Frame) and stream is not None:
-                stream.on_frame(msg, time.monotonic())
-            elif isinstance(msg, Background) and stream is not None:
-                stream.on_background(msg)
+                pass
             now = time.monotonic()
             if stream is not None:
                 stream.flush_ready(now)
                 rt.extra["raw_frames"] = stream.frames_written
             if now - last_snap >= SNAPSHOT_PERIOD_S:
-                poses.snapshot()
+                poses.log.snapshot()
                 last_snap = now
-            rt.extra["poses"] = len(poses)
+            rt.extra["poses"] = len(poses.log)
             rt.publish_status()
     finally:
         for s in subs:
             s.undeclare()
         while True:     # what already arrived is still written
             try:
-                msg = inbox.get_nowait()
+                handle(inbox.get_nowait())
             except queue.Empty:
                 break
-            try:
-                if isinstance(msg, Pose) and msg.frame > last_frame:
-                    poses.add(msg)
-                    bvh.write(msg.bvh_frame)
-                    last_frame = msg.frame
-                elif isinstance(msg, Frame) and stream is not None:
-                    stream.on_frame(msg, time.monotonic())
-            except ValueError as exc:
-                log.warning("recorder: last message not written: %s", exc)
-        poses.snapshot()
-        bvh.close()
+        poses.close()
         if stream is not None:
             stream.close()
-        log.info("recorder: %d poses written to %s", len(poses), out_dir)
+        log.info("recorder: %d poses written to %s", len(poses.log), out_dir)
 
 
 def build_parser():

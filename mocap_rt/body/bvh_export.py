@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from mocap_rt.body.kinematics import euler_xyz_from_matrix, forward_kinematics
-from mocap_rt.body.skeleton import N_JOINTS, BodyModel
+from mocap_rt.body.skeleton import N_JOINTS, BodyModel, BoneLengths, body_model
 from mocap_rt.io.bvh import BvhJoint, BvhSkeleton
 from mocap_rt.names import JOINT_NAMES
 
@@ -37,6 +37,12 @@ def bvh_skeleton(model: BodyModel) -> BvhSkeleton:
             end = C @ (model.rest_world[j] @ np.array([0.0, 0, END_SITE_M]))
         joints.append(BvhJoint(name, p, off, ROOT_CHANNELS if p < 0 else JOINT_CHANNELS, end))
     return BvhSkeleton(tuple(joints))
+
+
+def bvh_skeleton_of(lengths: BoneLengths) -> BvhSkeleton:
+    """The hierarchy of a subject with these bone lengths (the paper and full presets share
+    it): what a ``BodyTracker`` with these lengths writes motion rows for."""
+    return bvh_skeleton(body_model(lengths, "paper"))
 
 
 @njit(cache=True, nogil=True)

@@ -87,6 +87,19 @@ class BoneLengths:
         return replace(self, **{f.name: getattr(self, f.name) * factor
                                 for f in fields(self) if f.name.endswith("_m")})
 
+    def as_array(self) -> np.ndarray:
+        """(n_fields,) float64 in field order (for messages; ``from_array`` inverts it)."""
+        return np.array([getattr(self, f.name) for f in fields(self)], np.float64)
+
+    @classmethod
+    def from_array(cls, values) -> "BoneLengths":
+        """The lengths from ``as_array``'s vector; ValueError on a wrong size or value."""
+        v = np.asarray(values, np.float64).reshape(-1)
+        names = [f.name for f in fields(cls)]
+        if v.shape[0] != len(names):
+            raise ValueError(f"bone lengths: expected {len(names)} values, got {v.shape[0]}")
+        return cls(**{n: float(x) for n, x in zip(names, v)})
+
     @property
     def leg_m(self) -> float:
         return self.thigh_m + self.shank_m
@@ -120,6 +133,9 @@ def read_bone_lengths(path: str | Path) -> BoneLengths:
 def write_bone_lengths(lengths: BoneLengths, path: str | Path) -> None:
     """Write ``[bones]`` TOML (round-trips through ``read_bone_lengths``)."""
     Path(path).write_text(dumps_toml({"bones": asdict(lengths)}), encoding="utf-8")
+
+
+N_BONE_VALUES = len(fields(BoneLengths))     # length of ``BoneLengths.as_array()``
 
 
 # ----------------------------------------------------------------------------- model

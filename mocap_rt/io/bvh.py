@@ -468,11 +468,47 @@ class BvhStreamWriter:
         self._flush_every = max(1, int(round(flush_interval_s / frame_time_s)))
         self._pending: list[np.ndarray] = []
         self.n_written = 0
-        self._fh = open(self.path, "wb")
-        self._fh.write((hierarchy_text(skeleton) + "MOTION\n").encode())
-        self._count_pos = self._fh.tell() + len("Frames: ")
-        self._fh.write(f"Frames: {0:<{_FRAMES_FIELD_WIDTH}d}\nFrame Time: {_fmt(frame_time_s)}\n".encode())
+        self._fh = open(self.path, "w+b")
+        self._fh.write(self._header(skeleton, 0))
+        self._count_pos = self._header_count_pos(skeleton)
+        self._data_pos = self._fh.tell()
         self._fh.flush()
+
+    def _header(self, skeleton: BvhSkeleton, n_frames: int) -> bytes:
+        return (hierarchy_text(skeleton) + "MOTION\n" + f"Frames: {n_frames:<{_FRAMES_FIELD_WIDTH}d}\n"
+                f"Frame Time: {_fmt(self.frame_time_s)}\n").encode()
+
+    @staticmethod
+    def _header_count_pos(skeleton: BvhSkeleton) -> int:
+        return len((hierarchy_text(skeleton) + "MOTION\nFrames: ").encode())
+
+    def set_skeleton(self, skeleton: BvhSkeleton) -> None:
+        """Give the file a new hierarchy (same channels, e.g. the subject's calibrated bone
+        lengths) for the frames written so far and to come. The file is rewritten beside
+        the old one and swapped in by rename, so it parses at every instant."""
+        if self._fh is None:
+            raise ValueError(f"{self.path}: writer is closed")
+        if hierarchy_text(skeleton) == hierarchy_text(self.skeleton):
+            return
+        if skeleton.n_channels != self.skeleton.n_channels:
+            raise ValueError(f"{self.path}: new skeleton has {skeleton.n_channels} channels, "
+                             f"the file {self.skeleton.n_channels}")
+        self.flush()
+        self._fh.seek(self._data_pos)
+        motion = self._fh.read()
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        with open(tmp, "wb") as out:
+            out.write(self._header(skeleton, self.n_written))
+            data_pos = out.tell()
+            out.write(motion)
+            out.flush()
+            os.fsync(out.fileno())
+        os.replace(tmp, self.path)
+        self._fh.close()
+        self._fh = open(self.path, "r+b")
+        self._fh.seek(0, os.SEEK_END)
+        self.skeleton, self._data_pos = skeleton, data_pos
+        self._count_pos = self._header_count_pos(skeleton)
 
     def write(self, frame_values: np.ndarray) -> None:
         """Append one frame: (n_channels,) float64 motion values."""

@@ -156,6 +156,32 @@ def test_stream_writer_close_writes_everything(tmp_path, data_dir):
     np.testing.assert_allclose(back.motion, clip.motion[:37], rtol=1e-8, atol=1e-9)
 
 
+def test_stream_writer_new_skeleton_keeps_every_frame(tmp_path, data_dir):
+    from dataclasses import replace
+
+    from mocap_rt.io.bvh import BvhSkeleton
+
+    clip = read_bvh(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh")
+    bigger = BvhSkeleton(tuple(replace(j, offset=1.2 * np.asarray(j.offset)) for j in clip.skeleton.joints))
+    path = tmp_path / "s.bvh"
+    w = BvhStreamWriter(path, clip.skeleton, clip.frame_time_s, flush_interval_s=10 * clip.frame_time_s)
+    for row in clip.motion[:37]:
+        w.write(row)
+    w.set_skeleton(bigger)                     # 37 frames so far, 7 of them not yet flushed
+    mid = read_bvh(path)                       # the file parses while the writer is open
+    np.testing.assert_allclose(mid.skeleton.offsets, bigger.offsets, rtol=1e-6)
+    np.testing.assert_allclose(mid.motion, clip.motion[:37], rtol=1e-8, atol=1e-9)
+    for row in clip.motion[37:60]:
+        w.write(row)
+    with pytest.raises(ValueError, match="channels"):
+        w.set_skeleton(BvhSkeleton(clip.skeleton.joints[:1]))
+    w.close()
+    back = read_bvh(path)
+    np.testing.assert_allclose(back.skeleton.offsets, bigger.offsets, rtol=1e-6)
+    np.testing.assert_allclose(back.motion, clip.motion[:60], rtol=1e-8, atol=1e-9)
+    assert not path.with_name("s.bvh.tmp").exists()
+
+
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10_000), n_joints=st.integers(1, 8))
 def test_random_skeletons_any_rotation_order(tmp_path_factory, seed, n_joints):

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from mocap_rt.body.skeleton import BoneLengths
 from mocap_rt.cues import CameraCues, CuePrediction
 from nodes.fusion_node import PendingFrame, fuse_and_publish, stage_timings
 from nodes.messages import Keys, Pose, Prediction
@@ -53,6 +54,7 @@ class _Tracker:
 
     def __init__(self, cams, calls: list) -> None:
         self.cams, self.calls = cams, calls
+        self.lengths = BoneLengths()
 
     def step(self, frame, cues):
         self.calls.append(("step", frame))

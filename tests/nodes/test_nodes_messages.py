@@ -6,6 +6,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from mocap_rt.body.skeleton import N_BONE_VALUES
 from mocap_rt.cues import CameraCues, CuePrediction
 from nodes.messages import (MESSAGE_TYPES, SCHEMA_VERSION, Background, Cues, Decoder, Frame, Keys,
                             MessageError, Pose, Prediction, Preview, Status, Trigger, decode_array,
@@ -37,7 +38,8 @@ predictions = st.builds(lambda rig, cam, f, xy, vis, rad: Prediction(rig, CuePre
                         names, names, u63, arr((6, 2)), bools((6,)), arr((6,)))
 poses = st.builds(Pose, names, u63, u63, u63, arr((6, 3)), bools((6,)), arr((20, 3)),
                   st.integers(0, 120).flatmap(lambda n: arr((n,))),
-                  st.lists(names, max_size=6).map(tuple), st.lists(names, max_size=6).map(tuple), small_map)
+                  st.lists(names, max_size=6).map(tuple), st.lists(names, max_size=6).map(tuple),
+                  arr((N_BONE_VALUES,)), small_map)
 statuses = st.builds(Status, names, names, names, u63, u63, st.sampled_from(Status.STATES), floats, floats,
                      u63, u63, u63, floats, small_map)
 previews = st.builds(Preview, names, names, u63, st.binary(max_size=2000))

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 from service_helpers import small_recording
 
+from mocap_rt.body.bvh_export import bvh_skeleton_of
+from mocap_rt.body.skeleton import BoneLengths, read_bone_lengths
 from mocap_rt.io.bvh import read_bvh
 from mocap_rt.io.recording import Recording
 
@@ -60,6 +62,11 @@ def test_cli_run_replay_records_poses_and_rerun_file(walk, tmp_path):
     poses = np.load(rec / "poses.npz")
     assert clip.motion.shape[0] == len(poses["frames"]) == stats["poses_published"]
     np.testing.assert_allclose(clip.motion, poses["bvh_motion"], atol=1e-4)
+    # fusion estimated the subject's bones after 2 s of this 2.5-s clip: the BVH hierarchy is
+    # that subject's (not the default adult), and bones.toml holds the lengths for later runs
+    bones = read_bone_lengths(rec / "bones.toml")
+    assert bones != BoneLengths()
+    np.testing.assert_allclose(clip.skeleton.offsets, bvh_skeleton_of(bones).offsets, atol=1e-5)
     truth = np.load(walk / "truth.npz")
     f = poses["frames"]
     assert np.isfinite(poses["joints"]).all(axis=(1, 2)).mean() > 0.8

@@ -2,16 +2,20 @@
 
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from mocap_rt.body.bvh_export import bvh_skeleton_of
+from mocap_rt.body.skeleton import BoneLengths, read_bone_lengths
 from mocap_rt.cues import CameraCues
+from mocap_rt.io.bvh import read_bvh
 from nodes.camera_worker import PredictionBox, TriggerSlot
 from nodes.fusion_node import FrameGatherer
 from nodes.messages import Cues, Keys, Pose, Trigger
 from nodes.monitor import percentiles
-from nodes.recorder import PoseLog, output_paths
+from nodes.recorder import PoseFiles, PoseLog, output_paths
 from nodes.runtime import NodeRuntime, RateMeter
 from nodes.sources import FakeDevice, Grabber, LiveSource, parse_source
 from nodes.sync import Schedule, run_sync
@@ -274,7 +278,8 @@ def test_pose_log_snapshot_round_trip(tmp_path):
     log = PoseLog(tmp_path / "poses.npz", ["a", "b"])
     rng = np.random.default_rng(0)
     poses = [Pose("r", f, 10 * MS * f, 10 * MS * f + 3 * MS, rng.normal(size=(6, 3)), np.ones(6, bool),
-                  rng.normal(size=(20, 3)), rng.normal(size=12), ("a",), ("b",)) for f in range(5)]
+                  rng.normal(size=(20, 3)), rng.normal(size=12), ("a",), ("b",), BoneLengths().as_array())
+             for f in range(5)]
     for p in poses:
         log.add(p)
     log.snapshot()
@@ -293,7 +298,36 @@ def test_output_paths_never_reuse_existing_files(tmp_path):
     assert a[0].name == "poses.npz"
     a[1].write_text("x")
     b = output_paths(tmp_path)
-    assert b[0].name == "poses_001.npz" and b[2].name == "stream_001"
+    assert [p.name for p in b] == ["poses_001.npz", "poses_001.bvh", "bones_001.toml", "stream_001"]
+
+
+def _pose(frame: int, bones: BoneLengths, n_channels: int) -> Pose:
+    rng = np.random.default_rng(frame)
+    return Pose("r", frame, 0, 1, np.zeros((6, 3)), np.ones(6, bool), np.zeros((20, 3)),
+                rng.uniform(-90, 90, n_channels), ("a",), (), bones.as_array())
+
+
+def test_pose_files_give_the_bvh_the_calibrated_skeleton(tmp_path):
+    default, subject = BoneLengths(), BoneLengths().scaled(1.1)
+    n_ch = bvh_skeleton_of(default).n_channels
+    files = PoseFiles(tmp_path / "p.npz", tmp_path / "p.bvh", tmp_path / "b.toml", ["a"], 30.0)
+    sent = [_pose(f, default, n_ch) for f in range(40)] + [_pose(f, subject, n_ch) for f in range(40, 75)]
+    for p in sent[:40]:
+        files.add(p)
+    assert read_bone_lengths(tmp_path / "b.toml") == default
+    for p in sent[40:]:
+        files.add(p)
+    with pytest.raises(ValueError, match="not newer"):
+        files.add(_pose(10, subject, n_ch))
+    with pytest.raises(ValueError, match="bone length"):
+        files.add(replace(_pose(80, subject, n_ch), bones=-subject.as_array()))
+    files.close()
+    clip = read_bvh(tmp_path / "p.bvh")
+    np.testing.assert_allclose(clip.skeleton.offsets, bvh_skeleton_of(subject).offsets, atol=1e-6)
+    np.testing.assert_allclose(clip.skeleton.offsets, 1.1 * bvh_skeleton_of(default).offsets, atol=1e-6)
+    np.testing.assert_allclose(clip.motion, [p.bvh_frame for p in sent], atol=1e-4)
+    assert read_bone_lengths(tmp_path / "b.toml") == subject
+    np.testing.assert_array_equal(np.load(tmp_path / "p.npz")["frames"], np.arange(75))
 
 
 def test_gatherer_first_frames_wait_for_every_rig_camera():
