@@ -10,11 +10,19 @@ Optional outputs: a JPEG preview every ``--preview-every`` frames (for the viewe
 live sources with ``--publish-frames``, the raw images and backgrounds (for the recorder).
 
     python -m nodes.camera_worker --rig RIG.toml --camera cam_1 --source replay:REC_DIR
+
+With ``--standby`` the process is a *hot spare* (the launcher keeps one): it imports and loads
+every JIT kernel by warming up on the given camera (a replay's frames; synthetic frames for a
+live source, whose device belongs to the running worker), without joining the service, then
+waits for one JSON line on stdin, ``{"argv": [worker flags], "log": "FILE"}``, and becomes that
+worker. Replacing a dead worker so costs its per-camera set-up, not a process start.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import sys
 import threading
 import time
@@ -90,6 +98,45 @@ def make_perceiver(camera, backgrounds, config_path=None, origin: str = "live"):
 
     config = pipeline.load_perception_config(config_path) if config_path is not None else pipeline.PerceptionConfig()
     return pipeline.CameraPerceiver(camera, backgrounds, pipeline.config_for_source(config, origin))
+
+
+def warm_up(camera, source, backgrounds, config_path=None) -> None:
+    """Run a throw-away perceiver once (JIT kernels, caches) so the first triggered frame is
+    as fast as any other; a live source is not read (a background frame stands in)."""
+    warm = make_perceiver(camera, backgrounds, config_path, source.origin)
+    warm.process(source.grab(0).image if not source.live else backgrounds[0], 0, None)
+
+
+def standby(parser, args):
+    """The hot spare (module doc): warm up on ``args``' camera, wait for the assignment on
+    stdin, return its parsed flags (None at end of input: the launcher stopped)."""
+    import numpy as np
+
+    from nodes.sources import open_source
+
+    camera = load_rig(args)[args.camera]
+    source = open_source(args.source, camera, args.fps) if args.source.startswith("replay:") else None
+    if source is not None:
+        warm_up(camera, source, source.backgrounds(), args.perception_config)
+        source.close()
+    else:
+        w, h = camera.size
+        noise = np.random.default_rng(0).integers(0, 8, (3, h, w, 3), dtype=np.uint8)
+        backgrounds = noise + np.array([90, 100, 110], np.uint8)
+        make_perceiver(camera, backgrounds, args.perception_config).process(backgrounds[0], 0, None)
+    log.info("standby: warm, waiting for a camera to take over")
+    line = sys.stdin.readline()
+    if not line.strip():
+        return None
+    job = json.loads(line)
+    if job.get("log"):
+        fd = os.open(job["log"], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        os.close(fd)
+    new = parser.parse_args(job["argv"])
+    log.info("standby: taking over as %s", new.node or new.camera)
+    return new
 
 
 def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
@@ -198,6 +245,8 @@ def build_parser():
     p.add_argument("--publish-frames", action="store_true", help="publish raw frames + backgrounds (recorder)")
     p.add_argument("--cv-threads", type=int, default=1,
                    help="OpenCV threads in this worker (one process per camera already runs in parallel)")
+    p.add_argument("--standby", action="store_true",
+                   help="hot spare: warm up, then take the worker flags to run from stdin (module doc)")
     return p
 
 
@@ -205,6 +254,10 @@ def main(argv: list[str] | None = None) -> int:
     p = build_parser()
     args = p.parse_args(argv)
     setup_logging(args.log_level)
+    if args.standby:
+        args = standby(p, args)
+        if args is None:
+            return 0
     import cv2
 
     cv2.setNumThreads(args.cv_threads)
@@ -214,19 +267,22 @@ def main(argv: list[str] | None = None) -> int:
     keys = Keys(args.rig_name)
     from nodes.sources import open_source
 
+    t = [time.perf_counter()]
     source = open_source(args.source, camera, args.fps)
     with open_session(args) as session:
+        t.append(time.perf_counter())
         rt = NodeRuntime(session, keys, node, "camera")
         rt.install_signal_handlers()
         rt.publish_status("starting", force=True)
         try:
             backgrounds = source.backgrounds()
             perceiver = make_perceiver(camera, backgrounds, args.perception_config, source.origin)
-            # warm-up (JIT, caches, the replay's first video segment) on a throw-away
-            # perceiver, so the first triggered frame is as fast as any other
-            warm = make_perceiver(camera, backgrounds, args.perception_config, source.origin)
-            warm.process(source.grab(0).image if not source.live else backgrounds[0], 0, None)
+            t.append(time.perf_counter())
+            warm_up(camera, source, backgrounds, args.perception_config)
             source.prefetch(0)          # the first trigger's image is ready (no seek back)
+            t.append(time.perf_counter())
+            log.info("%s: set up in %.2f s (source + session %.2f, perceiver %.2f, warm-up %.2f)",
+                     node, t[-1] - t[0], *(b - a for a, b in zip(t, t[1:])))
             if args.publish_frames and source.live:
                 session.put(keys.background(camera.name),
                             Background(keys.rig, camera.name, backgrounds).to_msgpack())

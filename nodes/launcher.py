@@ -3,7 +3,10 @@
 Start order: recorder and viewer (so they miss nothing), fusion, one camera worker per
 camera; when all report ready, the sync node. Every node listens on its own loopback port
 and connects to every node started before it and to the launcher (a full mesh of explicit
-endpoints, each link opened from one side: no scouting, no router). A node that dies is restarted (``RESTART_LIMIT`` times); stopping (Ctrl-C,
+endpoints, each link opened from one side: no scouting, no router). A node that dies is
+restarted (``RESTART_LIMIT`` times); a dead camera worker is replaced by the *hot spare*, a
+worker process kept warm and idle (``camera_worker --standby``), so it is back within a
+fraction of a second instead of a process start, and a new spare is started. Stopping (Ctrl-C,
 ``--duration``, end of a replay) stops the sync first, lets the last poses arrive, then
 sends SIGTERM to the rest (SIGKILL after ``STOP_TIMEOUT_S``).
 """
@@ -190,6 +193,7 @@ class Launcher:
         self.session = None
         self.monitor: ServiceMonitor | None = None
         self.stopping = False
+        self.spare: subprocess.Popen | None = None     # the hot spare camera worker
         self.t_sync_start: float | None = None
         self._cpu_at_start: dict[str, float] = {}
         self.t_sync_stop: float | None = None
@@ -282,17 +286,65 @@ class Launcher:
             self.nodes[name] = NodeProc(name, role, argv + common + ["--node", name] + z + extra, ports[name])
 
     # ------------------------------------------------------------ processes
-    def _spawn(self, node: NodeProc) -> None:
-        logf = open(self.log_path(node.name), "ab")
+    def _popen(self, argv: list[str], role: str, log_name: str, stdin=subprocess.DEVNULL) -> subprocess.Popen:
+        logf = open(self.log_path(log_name), "ab")
         # one compute thread per node: the nodes already run in parallel, and library thread
         # pools in each of them (OpenCV, numba, BLAS) would only oversubscribe the cores
         env = dict(os.environ, PYTHONUNBUFFERED="1", **SINGLE_THREAD_ENV)
-        node.proc = subprocess.Popen([sys.executable] + node.argv, stdout=logf, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, env=env, start_new_session=True,
-                                     preexec_fn=_child_setup(self.cfg.nice if node.role in REALTIME_ROLES else 0))
-        logf.close()
+        try:
+            return subprocess.Popen([sys.executable] + argv, stdout=logf, stderr=subprocess.STDOUT,
+                                    stdin=stdin, env=env, start_new_session=True,
+                                    preexec_fn=_child_setup(self.cfg.nice if role in REALTIME_ROLES else 0))
+        finally:
+            logf.close()
+
+    def _spawn(self, node: NodeProc) -> None:
+        node.proc = self._popen(node.argv, node.role, node.name)
         node.cpu_last_s = 0.0
         log.debug("started %s pid %d", node.name, node.proc.pid)
+
+    def _spawn_spare(self) -> None:
+        """Start the hot spare: a camera worker that warms up on the first camera and waits."""
+        first = next((n for n in self.nodes.values() if n.role == "camera"), None)
+        if first is not None and self.cfg.restart:
+            self.spare = self._popen(first.argv + ["--standby"], "camera", "spare", stdin=subprocess.PIPE)
+
+    def _take_over(self, node: NodeProc) -> bool:
+        """Hand ``node``'s flags to the hot spare; False if there is none (or it is gone)."""
+        spare, self.spare = self.spare, None
+        if spare is None:
+            return False
+        if spare.poll() is not None:
+            log.warning("the hot spare had exited with %s%s", spare.returncode, self.log_tail("spare"))
+            self._spawn_spare()
+            return False
+        job = {"argv": node.argv[2:], "log": str(self.log_path(node.name))}    # after "-m module"
+        try:
+            spare.stdin.write((json.dumps(job) + "\n").encode())
+            spare.stdin.close()
+        except OSError:
+            spare.kill()
+            return False
+        node.proc = spare
+        node.cpu_last_s = 0.0
+        log.info("%s: taken over by the hot spare (pid %d)", node.name, spare.pid)
+        self._spawn_spare()
+        return True
+
+    def _stop_spare(self) -> None:
+        spare, self.spare = self.spare, None
+        if spare is None:
+            return
+        try:
+            spare.stdin.close()           # end of input: a waiting spare exits
+        except OSError:
+            pass
+        spare.terminate()
+        try:
+            spare.wait(timeout=STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            spare.kill()
+            spare.wait()
 
     def log_path(self, name: str) -> Path:
         return self.log_dir / f"{name}.log"
@@ -341,7 +393,8 @@ class Launcher:
                 continue
             n.restarts += 1
             log.warning("%s exited with %s; restarting (%d)", n.name, rc, n.restarts)
-            self._spawn(n)
+            if not (n.role == "camera" and self._take_over(n)):
+                self._spawn(n)
             restarted.append(n.name)
         return restarted
 
@@ -355,6 +408,7 @@ class Launcher:
         for n in self.nodes.values():
             if n.role != "sync":
                 self._spawn(n)
+        self._spawn_spare()
         waiting = [n.name for n in self.nodes.values() if n.role != "sync"]
         t_end = time.monotonic() + STARTUP_TIMEOUT_S
         while waiting:
@@ -468,6 +522,7 @@ class Launcher:
         order = [n for n, p in self.nodes.items() if p.role in ("camera", "fusion")]
         self._terminate(order)
         self._terminate([n for n, p in self.nodes.items() if p.role in ("recorder", "viewer")])
+        self._stop_spare()
         if self.session is not None:
             self.monitor.close()
             self.session.close()

@@ -1,4 +1,8 @@
-"""The launcher's own duties: distinct listen ports, and a node that cannot start explains why."""
+"""The launcher's own duties: distinct listen ports, a node that cannot start explains why,
+the hot spare camera worker."""
+
+import subprocess
+import sys
 
 import pytest
 from service_helpers import small_recording
@@ -27,3 +31,16 @@ def test_a_node_failing_at_start_is_reported_with_its_log(tmp_path, tmp_path_fac
         L.stop()
     msg = str(err.value)
     assert "fusion failed at start" in msg and "unrecognized arguments: --no-such-flag" in msg
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["replay", "fake"])
+def test_hot_spare_warms_up_and_exits_at_end_of_input(kind, tmp_path_factory, data_dir):
+    # a live source's device belongs to the running worker: the spare warms up on synthetic
+    # frames there; a replay it reads. With no assignment (the launcher stopped) it exits 0.
+    walk = small_recording(tmp_path_factory.getbasetemp(), data_dir)
+    proc = subprocess.run([sys.executable, "-m", "nodes.camera_worker", "--rig", str(walk / "rig.toml"),
+                           "--camera", "cam_1", "--source", f"{kind}:{walk}", "--standby"],
+                          input="", capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "standby: warm, waiting" in proc.stderr and "taking over" not in proc.stderr
