@@ -115,23 +115,35 @@ def _change_kernel(img, mean, inv_ee, thr2, x0, y0, a_min, a_max, strong2, out):
     (the pipeline keeps silhouette-boundary pixels only when strongly changed).
 
     img (H,W,3) uint8, mean (H,W,3) f32, inv_ee (H,W) f32 = 1/(E.E), thr2 (H,W) f32 squared
-    colour-distortion threshold. A brightness ratio outside [a_min, a_max] is a change only
-    if the plain colour distance also exceeds the threshold (dark pixels have noisy ratios).
+    colour-distortion threshold, out: all C-contiguous. A brightness ratio outside
+    [a_min, a_max] is a change only if the plain colour distance also exceeds the threshold
+    (dark pixels have noisy ratios).
     """
     h, w = out.shape
+    W = img.shape[1]
+    # flat rows with unit stride: the loop vectorises (~4x faster than 3D indexing)
+    img_f = img.reshape(-1)
+    mean_f = mean.reshape(-1)
+    inv_ee_f = inv_ee.reshape(-1)
+    thr2_f = thr2.reshape(-1)
+    out_f = out.reshape(-1)
     for yy in range(h):
-        y = y0 + yy
+        p0 = (y0 + yy) * W + x0                  # first pixel of the row
+        img_r = img_f[3 * p0:3 * (p0 + w)]
+        mean_r = mean_f[3 * p0:3 * (p0 + w)]
+        inv_ee_r = inv_ee_f[p0:p0 + w]
+        thr2_r = thr2_f[p0:p0 + w]
+        out_r = out_f[yy * w:(yy + 1) * w]
         for xx in range(w):
-            x = x0 + xx
-            i0 = np.float32(img[y, x, 0])
-            i1 = np.float32(img[y, x, 1])
-            i2 = np.float32(img[y, x, 2])
-            e0 = mean[y, x, 0]
-            e1 = mean[y, x, 1]
-            e2 = mean[y, x, 2]
+            i0 = np.float32(img_r[3 * xx])
+            i1 = np.float32(img_r[3 * xx + 1])
+            i2 = np.float32(img_r[3 * xx + 2])
+            e0 = mean_r[3 * xx]
+            e1 = mean_r[3 * xx + 1]
+            e2 = mean_r[3 * xx + 2]
             dot = i0 * e0 + i1 * e1 + i2 * e2
-            a = dot * inv_ee[y, x]
-            t2 = thr2[y, x]
+            a = dot * inv_ee_r[xx]
+            t2 = thr2_r[xx]
             # |I - a E|^2 = |I|^2 - (I.E)^2 / (E.E)
             cd2 = i0 * i0 + i1 * i1 + i2 * i2 - dot * a
             d0 = i0 - e0
@@ -141,7 +153,7 @@ def _change_kernel(img, mean, inv_ee, thr2, x0, y0, a_min, a_max, strong2, out):
             out_band = (a < a_min) | (a > a_max)
             fg = (cd2 > t2) | (out_band & (dd2 > t2))
             strong = (cd2 > strong2 * t2) | (out_band & (dd2 > strong2 * t2))
-            out[yy, xx] = np.uint8(128) * np.uint8(fg) + np.uint8(127) * np.uint8(strong & fg)
+            out_r[xx] = np.uint8(128) * np.uint8(fg) + np.uint8(127) * np.uint8(strong & fg)
 
 
 def change_mask(image_bgr: np.ndarray, model: BackgroundModel, roi: tuple[int, int, int, int] | None = None,
@@ -157,6 +169,8 @@ def change_mask(image_bgr: np.ndarray, model: BackgroundModel, roi: tuple[int, i
     x, y, w, h = roi if roi is not None else (0, 0, img.shape[1], img.shape[0])
     if out is None:
         out = np.empty((h, w), np.uint8)
+    elif out.shape != (h, w) or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous ({h}, {w}) uint8 array, got {out.shape} {out.dtype}")
     inv_ee, thr2 = model.derived(thresholds)
     _change_kernel(img, model.mean_bgr, inv_ee, thr2, x, y, np.float32(thresholds.alpha_min),
                    np.float32(thresholds.alpha_max), np.float32(thresholds.edge_strength ** 2), out)
@@ -164,33 +178,22 @@ def change_mask(image_bgr: np.ndarray, model: BackgroundModel, roi: tuple[int, i
 
 
 @numba.njit(cache=True, nogil=True)
-def component_stats(labels, n_labels, stats):  # pragma: no cover - numba
-    """Area and box of each label of ``labels`` (h, w) int32 (from cv2.connectedComponents).
-
-    stats (n_labels, 5) int64 is overwritten: x_min, y_min, x_max, y_max, area.
-    Cheaper than cv2.connectedComponentsWithStats, which also computes centroids.
+def keep_strong_boundary(sil, change):  # pragma: no cover - numba
+    """Silhouette (h, w) uint8 {0, 255} whose boundary pixels stay only where ``change``
+    (h, w) (``change_mask`` codes) is 255, i.e. strongly changed: the silhouette eroded by
+    the 3x3 cross (border replicated) plus its strongly changed pixels. New (h, w) array.
     """
-    h, w = labels.shape
-    for k in range(n_labels):
-        stats[k, 0] = w
-        stats[k, 1] = h
-        stats[k, 2] = -1
-        stats[k, 3] = -1
-        stats[k, 4] = 0
+    h, w = sil.shape
+    out = np.zeros((h, w), np.uint8)
     for y in range(h):
         for x in range(w):
-            k = labels[y, x]
-            if k == 0:
+            if sil[y, x] == 0:
                 continue
-            stats[k, 4] += 1
-            if x < stats[k, 0]:
-                stats[k, 0] = x
-            if x > stats[k, 2]:
-                stats[k, 2] = x
-            if y < stats[k, 1]:
-                stats[k, 1] = y
-            if y > stats[k, 3]:
-                stats[k, 3] = y
+            interior = ((x == 0 or sil[y, x - 1] != 0) and (x == w - 1 or sil[y, x + 1] != 0)
+                        and (y == 0 or sil[y - 1, x] != 0) and (y == h - 1 or sil[y + 1, x] != 0))
+            if interior or change[y, x] == 255:
+                out[y, x] = 255
+    return out
 
 
 def largest_component_filled(mask: np.ndarray, min_area_px: int = 0) -> tuple[np.ndarray, tuple[int, int, int, int]]:

@@ -76,17 +76,19 @@ def _mahal2(x, y, sites, k):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _bilinear_own(img, x, y, sites, k):  # pragma: no cover - numba
-    """Bilinear sample of ``img`` at (x, y) counting only blob k's pixels (see ``_own``)."""
-    h, w = img.shape
+def _bilinear(src, x, y, w, h, ox, oy):  # pragma: no cover - numba
+    """Bilinear sample at point (x, y) of an (h, w) image whose pixels from (ox, oy) on are
+    ``src`` (it must hold every pixel the sample reads); 0 outside the image."""
     if x < 0.0 or y < 0.0 or x > w - 1.0 or y > h - 1.0 or w < 2 or h < 2:
         return 0.0
     xi = min(int(x), w - 2)
     yi = min(int(y), h - 2)
     fx = x - xi
     fy = y - yi
-    a = _own(img, xi, yi, sites, k) * (1.0 - fx) + _own(img, xi + 1, yi, sites, k) * fx
-    b = _own(img, xi, yi + 1, sites, k) * (1.0 - fx) + _own(img, xi + 1, yi + 1, sites, k) * fx
+    xi -= ox
+    yi -= oy
+    a = src[yi, xi] * (1.0 - fx) + src[yi, xi + 1] * fx
+    b = src[yi + 1, xi] * (1.0 - fx) + src[yi + 1, xi + 1] * fx
     return a * (1.0 - fy) + b * fy
 
 
@@ -137,6 +139,26 @@ def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_p
     my = mean[1]
     L = 2 * win_half_px                      # window samples along the normal
     nw_half = 0.5 * 3.0 * L                  # N_W / 2
+    d_max = int(max(search_min_px, search_frac * scale * max(sd1, sd2)) + 0.5) + 1   # > any D below
+    prof = np.empty(2 * d_max + L)
+    f = np.empty(2 * d_max + 1)
+    h, w = skin.shape
+    if sites.shape[0] >= 2:
+        # blob k's pixels (``_own``) around the ellipse, each tested once instead of per
+        # sample: every sample lies within ``reach`` of the mean (point + offset + tangent)
+        reach = scale * max(sd1, sd2) + d_max + win_half_px + 1.0
+        ox = max(0, int(math.floor(mx - reach)) - 1)
+        oy = max(0, int(math.floor(my - reach)) - 1)
+        ex = min(w, int(math.floor(mx + reach)) + 3)
+        ey = min(h, int(math.floor(my + reach)) + 3)
+        src = np.zeros((max(ey - oy, 0), max(ex - ox, 0)), np.float32)
+        for y in range(oy, ey):
+            for x in range(ox, ex):
+                src[y - oy, x - ox] = _own(skin, x, y, sites, k_site)
+    else:
+        ox = 0
+        oy = 0
+        src = skin
     for k in range(n_pts):
         t = 2.0 * math.pi * k / n_pts
         u1 = math.cos(t)
@@ -159,15 +181,13 @@ def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_p
         D = min(D, int(0.8 * r_loc) + win_half_px) if r_loc > 1.0 else D
         # profile along the normal: samples at offsets q = -D - win_half + 0.5 ... D + win_half - 0.5
         n_prof = 2 * D + L
-        prof = np.empty(n_prof)
         for i in range(n_prof):
             q = -D - win_half_px + 0.5 + i
             sx = px + q * nx
             sy = py + q * ny
-            prof[i] = (_bilinear_own(skin, sx - tx, sy - ty, sites, k_site) + _bilinear_own(skin, sx, sy, sites, k_site)
-                       + _bilinear_own(skin, sx + tx, sy + ty, sites, k_site))
+            prof[i] = (_bilinear(src, sx - tx, sy - ty, w, h, ox, oy) + _bilinear(src, sx, sy, w, h, ox, oy)
+                       + _bilinear(src, sx + tx, sy + ty, w, h, ox, oy))
         # window sums for d = -D..D: samples i = d + D .. d + D + L - 1
-        f = np.empty(2 * D + 1)
         acc = 0.0
         for i in range(L):
             acc += prof[i]
@@ -193,10 +213,10 @@ def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_p
             dstar = -0.9 * r_loc
         contour[k, 0] = px + dstar * nx
         contour[k, 1] = py + dstar * ny
-        ox = int(contour[k, 0] + 2.5 * nx + 0.5)
-        oy = int(contour[k, 1] + 2.5 * ny + 0.5)
+        qx = int(contour[k, 0] + 2.5 * nx + 0.5)
+        qy = int(contour[k, 1] + 2.5 * ny + 0.5)
         hs, ws = sil.shape
-        contact[k] = 0 <= ox < ws and 0 <= oy < hs and sil[oy, ox] > 0
+        contact[k] = 0 <= qx < ws and 0 <= qy < hs and sil[qy, qx] > 0
     cx, cy, area = _polygon_centroid(contour, n_pts, mx, my)
     if mirror_iters > 0 and n_pts % 2 == 0:
         free = contour.copy()
@@ -207,7 +227,10 @@ def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_p
                 if contact[k] and not contact[j]:
                     contour[k, 0] = 2.0 * cx - free[j, 0]
                     contour[k, 1] = 2.0 * cy - free[j, 1]
+            prev_cx, prev_cy = cx, cy
             cx, cy, area = _polygon_centroid(contour, n_pts, mx, my)
+            if cx == prev_cx and cy == prev_cy:      # converged: further rounds change nothing
+                break
     return cx, cy, area
 
 
@@ -389,3 +412,230 @@ def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_p
         centers[k, 1] = cy - oy
         g = max(gp[0], gp[1] * r) if math.isfinite(r) else gp[2]
         gate[k] = g + gp[3] * math.hypot(vel[k, 0], vel[k, 1])
+
+
+# ---------------------------------------------------------------------- colour regions
+@numba.njit(cache=True, nogil=True)
+def region_stats(labels, n_labels, stats):  # pragma: no cover - numba
+    """Area, box and coordinate sums of each label of ``labels`` (h, w) int32 (from
+    ``cv2.connectedComponents``; ``cv2.connectedComponentsWithStats`` costs ~7x as much).
+
+    stats (n_labels, 7) int64 is overwritten: x_min, y_min, x_max, y_max, area, sum x, sum y.
+    """
+    h, w = labels.shape
+    for k in range(n_labels):
+        stats[k, 0] = w
+        stats[k, 1] = h
+        stats[k, 2] = -1
+        stats[k, 3] = -1
+        for j in range(4, 7):
+            stats[k, j] = 0
+    for y in range(h):
+        for x in range(w):
+            k = labels[y, x]
+            if k == 0:
+                continue
+            stats[k, 4] += 1
+            stats[k, 5] += x
+            stats[k, 6] += y
+            if x < stats[k, 0]:
+                stats[k, 0] = x
+            if x > stats[k, 2]:
+                stats[k, 2] = x
+            if y < stats[k, 1]:
+                stats[k, 1] = y
+            if y > stats[k, 3]:
+                stats[k, 3] = y
+
+
+@numba.njit(cache=True, nogil=True)
+def snap_window(centers, gate, x0, y0, x1, y1, near_gates, window_gates):  # pragma: no cover - numba
+    """Window (wx0, wy0, wx1, wy1) ROI px in which ``snap_regions`` looks for the blobs'
+    regions, or an empty one (wx1 <= wx0) when no snap is needed: fewer than two predicted
+    blobs, or none nearer another than ``near_gates`` x their two gates. The window spans
+    the predicted centres + ``window_gates`` x the largest gate, clipped to the box.
+    """
+    K = centers.shape[0]
+    n_have = 0
+    g_max = 0.0
+    lox = 1e300
+    loy = 1e300
+    hix = -1e300
+    hiy = -1e300
+    any_near = False
+    for i in range(K):
+        if not (math.isfinite(centers[i, 0]) and math.isfinite(centers[i, 1])):
+            continue
+        n_have += 1
+        g_max = max(g_max, gate[i])
+        lox = min(lox, centers[i, 0])
+        loy = min(loy, centers[i, 1])
+        hix = max(hix, centers[i, 0])
+        hiy = max(hiy, centers[i, 1])
+        for j in range(K):
+            if j != i and math.isfinite(centers[j, 0]) and math.isfinite(centers[j, 1]):
+                dx = centers[i, 0] - centers[j, 0]
+                dy = centers[i, 1] - centers[j, 1]
+                if dx * dx + dy * dy < (near_gates * (gate[i] + gate[j])) ** 2:
+                    any_near = True
+    if n_have < 2 or not any_near:
+        return 0, 0, 0, 0
+    reach = window_gates * g_max
+    wx0 = max(x0, int(lox - reach))
+    wy0 = max(y0, int(loy - reach))
+    wx1 = min(x1, int(hix + reach) + 1)
+    wy1 = min(y1, int(hiy + reach) + 1)
+    if wx1 - wx0 < 2 or wy1 - wy0 < 2:
+        return 0, 0, 0, 0
+    return wx0, wy0, wx1, wy1
+
+
+@numba.njit(cache=True, nogil=True)
+def snap_regions(labels, n_labels, wx0, wy0, centers, gate, min_area, max_regions, out):  # pragma: no cover
+    """Labelling centres moved onto the blobs' own colour regions (``BlobTracker._snap_to_regions``).
+
+    labels (h, w) int32: connected colour regions of the window whose top-left is (wx0, wy0)
+    ROI px. Regions of >= ``min_area`` pixels that a predicted blob (``centers`` (K, 2) ROI
+    px, NaN = none) reaches (distance <= its gate + half the region's larger side) are
+    candidates, at most ``max_regions`` (nearest first); the one-to-one assignment of
+    candidates to the predicted blobs with the least total distance moves each blob's row
+    of ``out`` (K, 2) to its region's centroid. Returns False (``out`` untouched) when
+    there are fewer candidates than predicted blobs or no assignment is within reach.
+    """
+    K = centers.shape[0]
+    ks = np.empty(K, np.int64)
+    nk = 0
+    for k in range(K):
+        if math.isfinite(centers[k, 0]) and math.isfinite(centers[k, 1]):
+            ks[nk] = k
+            nk += 1
+    stats = np.empty((n_labels, 7), np.int64)
+    region_stats(labels, n_labels, stats)
+    n_big = 0
+    for r in range(1, n_labels):
+        if stats[r, 4] >= min_area:
+            n_big += 1
+    if n_big < nk:
+        return False
+    # candidates: regions some blob reaches, in label order
+    cand_xy = np.empty((n_big, 2))
+    cand_d = np.empty((n_big, nk))
+    cand_reach = np.empty((n_big, nk), np.bool_)
+    n_cand = 0
+    for r in range(1, n_labels):
+        area = stats[r, 4]
+        if area < min_area:
+            continue
+        cx = stats[r, 5] / area + wx0
+        cy = stats[r, 6] / area + wy0
+        half = 0.5 * max(stats[r, 2] - stats[r, 0] + 1, stats[r, 3] - stats[r, 1] + 1)
+        reached = False
+        for i in range(nk):
+            dx = centers[ks[i], 0] - cx
+            dy = centers[ks[i], 1] - cy
+            d = math.sqrt(dx * dx + dy * dy)
+            cand_d[n_cand, i] = d
+            cand_reach[n_cand, i] = d <= gate[ks[i]] + half
+            reached |= cand_reach[n_cand, i]
+        if reached:
+            cand_xy[n_cand, 0] = cx
+            cand_xy[n_cand, 1] = cy
+            n_cand += 1
+    if n_cand < nk:
+        return False
+    # at most max_regions candidates, nearest (to any blob) first; stable insertion sort
+    order = np.arange(n_cand)
+    if n_cand > max_regions:
+        near = np.empty(n_cand)
+        for c in range(n_cand):
+            near[c] = cand_d[c, 0]
+            for i in range(1, nk):
+                near[c] = min(near[c], cand_d[c, i])
+        for a in range(1, n_cand):
+            b = a
+            while b > 0 and near[order[b - 1]] > near[order[b]]:
+                order[b - 1], order[b] = order[b], order[b - 1]
+                b -= 1
+        n_cand = max_regions
+    # every assignment of distinct candidates to the nk blobs, in lexicographic order
+    pick = np.zeros(nk, np.int64)
+    best = np.full(nk, -1, np.int64)
+    best_cost = np.inf
+    while True:
+        distinct = True
+        for i in range(nk):
+            for j in range(i):
+                if pick[i] == pick[j]:
+                    distinct = False
+        if distinct:
+            cost = 0.0
+            ok = True
+            for i in range(nk):
+                c = order[pick[i]]
+                if not cand_reach[c, i]:
+                    ok = False
+                    break
+                cost += cand_d[c, i]
+            if ok and cost < best_cost:
+                best_cost = cost
+                best[:] = pick
+        i = nk - 1
+        while i >= 0 and pick[i] == n_cand - 1:
+            pick[i] = 0
+            i -= 1
+        if i < 0:
+            break
+        pick[i] += 1
+    if best[0] < 0:
+        return False
+    for i in range(nk):
+        c = order[best[i]]
+        out[ks[i], 0] = cand_xy[c, 0]
+        out[ks[i], 1] = cand_xy[c, 1]
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def acquire_candidates(labels, n_labels, x0, y0, sums, found, min_area, cand):  # pragma: no cover - numba
+    """Unclaimed colour regions for re-acquisition (``BlobTracker._acquire``), largest first.
+
+    labels (h, w) int32: connected colour regions of the box whose top-left is (x0, y0) ROI
+    px. A region of >= ``min_area`` pixels is a candidate unless its box (+1 px) holds the
+    centre of a found blob (``found`` (K,) bool, moments ``sums`` (K, 6)). cand (m, 4)
+    receives (area, box centre x, box centre y ROI px, half the box's larger side + 1) of
+    the m largest (ties in label order). Returns how many rows were written.
+    """
+    stats = np.empty((n_labels, 7), np.int64)
+    region_stats(labels, n_labels, stats)
+    m = cand.shape[0]
+    n = 0
+    for r in range(1, n_labels):
+        area = stats[r, 4]
+        if area < min_area:
+            continue
+        xa = stats[r, 0]
+        ya = stats[r, 1]
+        xb = stats[r, 2]
+        yb = stats[r, 3]
+        claimed = False
+        for k in range(found.shape[0]):
+            if found[k]:
+                mx = sums[k, 1] / sums[k, 0]
+                my = sums[k, 2] / sums[k, 0]
+                if x0 + xa - 1 <= mx <= x0 + xb + 1 and y0 + ya - 1 <= my <= y0 + yb + 1:
+                    claimed = True
+        if claimed:
+            continue
+        # insert by area, after equal areas; drop what falls off the end
+        i = min(n, m - 1)
+        if n == m and area <= cand[m - 1, 0]:
+            continue
+        while i > 0 and cand[i - 1, 0] < area:
+            cand[i] = cand[i - 1]
+            i -= 1
+        cand[i, 0] = area
+        cand[i, 1] = x0 + 0.5 * (xa + xb)
+        cand[i, 2] = y0 + 0.5 * (ya + yb)
+        cand[i, 3] = 0.5 * max(xb - xa, yb - ya) + 1.0
+        n = min(n + 1, m)
+    return n

@@ -26,15 +26,14 @@ Coordinates: pixels of the full image unless a name says ``roi``.
 
 from __future__ import annotations
 
-import itertools
 import logging
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from mocap_rt.perception.background import component_stats
-from mocap_rt.perception.blob_kernels import N_MOMENTS, label_and_refine, predict_gates, update_tracks
+from mocap_rt.perception.blob_kernels import (N_MOMENTS, acquire_candidates, label_and_refine, predict_gates,
+                                             snap_regions, snap_window, update_tracks)
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +77,7 @@ _NO_SIL = np.zeros((1, 1), np.uint8)
 SNAP_WINDOW_GATES = 2.5     # region snap: search window around the predicted blobs, in gate radii
 SNAP_MAX_REGIONS = 5        # ... and at most this many candidate regions (nearest first)
 SNAP_NEAR_GATES = 2.0       # ... only for blobs nearer each other than this many times their two gates
+ACQUIRE_MAX_REGIONS = 4     # re-acquisition considers the largest this many unclaimed regions
 _NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
 _NAN_K = np.full(8, np.nan)
 
@@ -101,6 +101,7 @@ class BlobTracker:
         self._out_contours = np.zeros((K, params.n_contour_pts, 2))
         self._has_contour = np.zeros(K, np.bool_)
         self._all_visible = np.ones(K, np.bool_)
+        self._acq_cand = np.empty((ACQUIRE_MAX_REGIONS, 4))   # acquire_candidates' output
         p = params
         self._kp = np.array([p.min_area_px, p.ellipse_scale, p.n_contour_pts, p.search_frac, p.search_min_px,
                              p.window_half_px, p.mirror_iters, p.max_refine_shift_frac, float(p.exclusive_pixels)])
@@ -168,8 +169,9 @@ class BlobTracker:
         n = self._sums[:, 0]
         conf = np.minimum(1.0, n / (4.0 * p.min_area_px)) * np.where(visible, 1.0, 0.5) * \
             np.where(acquired, 0.5, 1.0) * found
-        out = BlobFrame(self._out_xy + (ox, oy), self._out_cov.copy(), self._out_area.copy(), conf,
-                        [self._out_contours[k] + (ox, oy) if self._has_contour[k] and found[k] else None
+        offset = np.array(roi_xy, np.float64)
+        out = BlobFrame(self._out_xy + offset, self._out_cov.copy(), self._out_area.copy(), conf,
+                        [self._out_contours[k] + offset if self._has_contour[k] and found[k] else None
                          for k in range(K)])
         self._update_state(out, found)
         return out
@@ -196,56 +198,13 @@ class BlobTracker:
         between both feet or hands the swing foot to the standing one. Regions that merged
         (touching shoes) are not enough regions: then the predictions stay the centres.
         """
-        p = self.params
-        have = np.isfinite(centers).all(axis=1)
-        if have.sum() < 2:
-            return centers
-        # only where two blobs are near (their gates, doubled, overlap) can proximity
-        # labelling mix them up: a lagging prediction sits up to a gate off its blob
-        ks = np.flatnonzero(have)
-        cs, gs = centers[ks], gate[ks]
-        d2 = ((cs[:, None, :] - cs[None, :, :]) ** 2).sum(-1)
-        near = d2 < (SNAP_NEAR_GATES * (gs[:, None] + gs[None, :])) ** 2
-        if near.sum() <= len(ks):            # the diagonal only
-            return centers
-        # regions are searched in a window around the predicted blobs (2.5 gates), not the box
-        x0, y0, x1, y1 = box
-        reach_px = SNAP_WINDOW_GATES * gs.max()
-        wx0 = max(x0, int(cs[:, 0].min() - reach_px))
-        wy0 = max(y0, int(cs[:, 1].min() - reach_px))
-        wx1 = min(x1, int(cs[:, 0].max() + reach_px) + 1)
-        wy1 = min(y1, int(cs[:, 1].max() + reach_px) + 1)
-        if wx1 - wx0 < 2 or wy1 - wy0 < 2:
+        wx0, wy0, wx1, wy1 = snap_window(centers, gate, *box, SNAP_NEAR_GATES, SNAP_WINDOW_GATES)
+        if wx1 <= wx0:
             return centers
         mask = (skin_roi[wy0:wy1, wx0:wx1] >= 0.5).view(np.uint8)
-        n, _, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
-        big = np.flatnonzero(stats[1:, 4] >= p.acquire_min_area_px) + 1
-        if len(big) < len(ks):
-            return centers
-        cc = cent[big] + (wx0, wy0)                                         # (R, 2) roi px
-        half = 0.5 * np.maximum(stats[big, 2], stats[big, 3])               # (R,)
-        d = np.sqrt(((cs[:, None, :] - cc[None, :, :]) ** 2).sum(-1))      # (k, R)
-        reach = d <= gs[:, None] + half[None, :]
-        cand = np.flatnonzero(reach.any(axis=0))
-        if len(cand) < len(ks):
-            return centers
-        if len(cand) > SNAP_MAX_REGIONS:
-            cand = cand[np.argsort(d[:, cand].min(axis=0))[:SNAP_MAX_REGIONS]]
-        dd, rr = d[:, cand].tolist(), reach[:, cand].tolist()
-        best, best_cost = None, np.inf
-        for perm in itertools.permutations(range(len(cand)), len(ks)):
-            cost = 0.0
-            for i, r in enumerate(perm):
-                if not rr[i][r]:
-                    break
-                cost += dd[i][r]
-            else:
-                if cost < best_cost:
-                    best, best_cost = perm, cost
-        if best is None:
-            return centers
+        n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
         out = centers.copy()
-        out[ks] = cc[cand[list(best)]]
+        snap_regions(labels, n, wx0, wy0, centers, gate, self.params.acquire_min_area_px, SNAP_MAX_REGIONS, out)
         return out
 
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
@@ -260,24 +219,10 @@ class BlobTracker:
         acquired = np.zeros(K, bool)
         if n <= 1:
             return acquired
-        stats = np.empty((n, 5), np.int64)
-        component_stats(labels, n, stats)
-        cand = []
-        for j in range(1, n):
-            xa, ya, xb, yb, area = stats[j]
-            if area < p.acquire_min_area_px:
-                continue
-            c = np.array([x0 + 0.5 * (xa + xb), y0 + 0.5 * (ya + yb)])
-            half = 0.5 * max(xb - xa, yb - ya) + 1.0
-            # a region that holds a found blob's centre is claimed
-            claimed = any(found[k] and x0 + xa - 1 <= self._sums[k, 1] / self._sums[k, 0] <= x0 + xb + 1
-                          and y0 + ya - 1 <= self._sums[k, 2] / self._sums[k, 0] <= y0 + yb + 1 for k in range(K))
-            if not claimed:
-                cand.append((float(area), c, half))
-        if not cand:
+        n_cand = acquire_candidates(labels, n, x0, y0, self._sums, found, p.acquire_min_area_px, self._acq_cand)
+        if n_cand == 0:
             return acquired
-        cand.sort(key=lambda t: -t[0])
-        cand = cand[:4]
+        cand = [(area, np.array([cx, cy]), half) for area, cx, cy, half in self._acq_cand[:n_cand].tolist()]
 
         def take(k: int, i: int) -> None:
             _, c, half = cand.pop(i)

@@ -30,7 +30,7 @@ from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
 from mocap_rt.perception.background import (BackgroundModel, ChangeThresholds, change_mask,
-                                            largest_component_filled)
+                                            keep_strong_boundary, largest_component_filled)
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
 from mocap_rt.perception.colour_model import ColourModel, colour_maps_binary, colour_model_from_spec
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
@@ -41,7 +41,6 @@ _SKIN_IDX = np.array([CUE_NAMES.index(c) for c in SKIN_CUES])
 _SHOE_IDX = np.array([CUE_NAMES.index(c) for c in SHOE_CUES])
 _TORSO = CUE_NAMES.index("torso")
 _HEAD = CUE_NAMES.index("head")
-_CROSS3 = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
 @dataclass(frozen=True)
@@ -190,7 +189,7 @@ class CameraPerceiver:
             xy[idx], cov[idx], area[idx], conf[idx] = res.xy, res.cov, res.area, res.confidence
             for k, c in zip(idx, res.contours):
                 if c is not None:
-                    self.last_contours[CUE_NAMES[k]] = c.copy()
+                    self.last_contours[CUE_NAMES[k]] = c
         t3 = time.perf_counter()
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
         if np.isfinite(txy).all():
@@ -244,9 +243,7 @@ class CameraPerceiver:
         if self.config.change.edge_strength > 1.0:
             # boundary pixels stay only if strongly changed: compressed video bleeds colour
             # across the person's edge, which makes the plain change mask ~1 px too wide
-            core = cv2.erode(sil, _CROSS3, borderType=cv2.BORDER_REPLICATE)
-            strong = cv2.compare(mask[cy:cy + ch, cx:cx + cw], 255, cv2.CMP_EQ)
-            sil = cv2.bitwise_or(core, cv2.bitwise_and(sil, strong))
+            sil = keep_strong_boundary(sil, mask[cy:cy + ch, cx:cx + cw])
         self._box, self._sil, self._sil_box = box, sil, box
         return sil, box
 

@@ -19,6 +19,7 @@ coarse cue (its covariance is the ridge's spread).
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 # Fraction of the distance-transform maximum that defines the trunk's ridge band.
@@ -39,12 +40,54 @@ def torso_point(silhouette: np.ndarray, ridge_frac: float = DEFAULT_RIDGE_FRAC, 
     if sil.size == 0:
         return np.full(2, np.nan), np.full((2, 2), np.nan), 0.0
     dist = cv2.distanceTransform(sil, cv2.DIST_L2, cv2.DIST_MASK_5)     # (h, w) float32 px / step
-    _, peak, _, _ = cv2.minMaxLoc(dist)
-    if peak <= 0:
+    m = ridge_moments(dist, ridge_frac)
+    n, peak = m[0], m[6]
+    if n == 0:
         return np.full(2, np.nan), np.full((2, 2), np.nan), 0.0
-    band = (dist >= ridge_frac * peak).view(np.uint8)
-    m = cv2.moments(band, binaryImage=True)
-    n = m["m00"]
-    xy = np.array([m["m10"] / n, m["m01"] / n]) * step
-    cov = (np.array([[m["mu20"], m["mu11"]], [m["mu11"], m["mu02"]]]) / n + np.eye(2) / 12.0) * step * step
+    xy = np.array([m[1] / n, m[2] / n]) * step
+    cov = (np.array([[m[3], m[4]], [m[4], m[5]]]) / n + np.eye(2) / 12.0) * step * step
     return xy, cov, float(peak) * step
+
+
+@numba.njit(cache=True, nogil=True)
+def ridge_moments(dist, ridge_frac):  # pragma: no cover - numba
+    """Moments of the ridge band ``dist >= ridge_frac * max(dist)`` of a distance map (h, w) float32.
+
+    Returns (n, sum x, sum y, mu20, mu11, mu02, max): pixel count, coordinate sums and
+    central second moments (as ``cv2.moments``, binaryImage=True, computes them), and the
+    maximum; n = 0 when the maximum is not positive.
+    """
+    h, w = dist.shape
+    peak = np.float32(0.0)
+    for y in range(h):
+        for x in range(w):
+            peak = max(peak, dist[y, x])
+    out = np.zeros(7)
+    out[6] = peak
+    if peak <= 0:
+        return out
+    thr = np.float32(ridge_frac * np.float64(peak))      # the band test in float32, as NumPy does it
+    n = 0
+    sx = 0
+    sy = 0
+    sxx = 0
+    sxy = 0
+    syy = 0
+    for y in range(h):
+        for x in range(w):
+            if dist[y, x] >= thr:
+                n += 1
+                sx += x
+                sy += y
+                sxx += x * x
+                sxy += x * y
+                syy += y * y
+    cx = sx * (1.0 / n)
+    cy = sy * (1.0 / n)
+    out[0] = n
+    out[1] = sx
+    out[2] = sy
+    out[3] = sxx - sx * cx
+    out[4] = sxy - sx * cy
+    out[5] = syy - sy * cy
+    return out

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mocap_rt.perception.background import (BackgroundModel, ChangeThresholds, change_mask,
-                                            largest_component_filled)
+                                            keep_strong_boundary, largest_component_filled)
 
 
 def _reference_change(img, model, th):
@@ -33,12 +33,18 @@ def test_change_kernel_matches_numpy_reference(seed):
     img = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
     th = ChangeThresholds()
     roi = (3, 5, 30, 20)
-    got = change_mask(img, model, roi, th) > 0
+    code = change_mask(img, model, roi, th)
     ref, cd2, t2 = _reference_change(img, model, th)
-    ref = ref[5:25, 3:33]
-    # float32 vs float64: ignore pixels within rounding of the threshold
-    near = np.abs(cd2 - t2)[5:25, 3:33] < 1e-3 * t2[5:25, 3:33] + 1e-2
-    assert np.array_equal(got[~near], ref[~near])
+    # strongly changed: the same test with edge_strength^2 times the squared threshold
+    strong_th = ChangeThresholds(cd_sigmas=th.cd_sigmas * th.edge_strength,
+                                 cd_min_grey=th.cd_min_grey * th.edge_strength)
+    strong, _, st2 = _reference_change(img, model, strong_th)
+    win = np.s_[5:25, 3:33]
+    # float32 vs float64: ignore pixels within rounding of the thresholds
+    near = (np.abs(cd2 - t2) < 1e-3 * t2 + 1e-2)[win] | (np.abs(cd2 - st2) < 1e-3 * st2 + 1e-2)[win]
+    assert np.array_equal((code > 0)[~near], ref[win][~near])
+    assert np.array_equal((code == 255)[~near], (ref & strong)[win][~near])
+    assert set(np.unique(code)) <= {0, 128, 255}
 
 
 def test_background_statistics_from_frames():
@@ -93,6 +99,20 @@ def test_largest_component_with_holes_filled():
     assert (out2 > 0).sum() == 19 and box2 == (2, 2, 7, 7)
     assert largest_component_filled(np.zeros((5, 5), np.uint8))[1] == (0, 0, 0, 0)
     assert largest_component_filled(m2, min_area_px=100)[1] == (0, 0, 0, 0)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_keep_strong_boundary_matches_opencv_morphology(seed):
+    rng = np.random.default_rng(seed)
+    sil = np.zeros((40, 50), np.uint8)
+    for _ in range(4):
+        cv2.circle(sil, (int(rng.integers(0, 50)), int(rng.integers(0, 40))), int(rng.integers(2, 15)), 255, -1)
+    change = rng.choice(np.array([0, 128, 255], np.uint8), sil.shape)
+    box = np.s_[3:37, 2:45]                       # views, as the pipeline passes them
+    core = cv2.erode(sil[box], cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)), borderType=cv2.BORDER_REPLICATE)
+    ref = cv2.bitwise_or(core, cv2.bitwise_and(sil[box], cv2.compare(change[box], 255, cv2.CMP_EQ)))
+    np.testing.assert_array_equal(keep_strong_boundary(sil[box], change[box]), ref)
 
 
 @pytest.mark.parametrize("flicker", [0.92, 1.0, 1.08])

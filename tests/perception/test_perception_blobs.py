@@ -1,13 +1,16 @@
 """Blob kernels and tracker (seed digest A.2, A.4): labelling, deformable ellipse, identities."""
 
+import itertools
+
 import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mocap_rt.perception.blob_kernels import deform_ellipse, label_moments
-from mocap_rt.perception.blobs import BlobParams, BlobTracker
+from mocap_rt.perception.blob_kernels import acquire_candidates, deform_ellipse, label_moments, region_stats
+from mocap_rt.perception.blobs import (SNAP_MAX_REGIONS, SNAP_NEAR_GATES, SNAP_WINDOW_GATES, BlobParams,
+                                       BlobTracker)
 
 _NO_SITES = np.full((1, 2), np.nan)
 
@@ -210,3 +213,154 @@ def test_cold_start_acquires_a_lone_shoe_by_its_side():
         out = tr.step(_feet_frame(pos, None), (0, 0), (0, 0, 200, 160), None)
         np.testing.assert_allclose(out.xy[expect], pos, atol=0.5)
         assert np.isnan(out.xy[1 - expect]).all() and out.confidence[1 - expect] == 0
+
+
+def _own_map(skin, sites, k):
+    """Blob k's pixels of ``skin``: colour pixels not nearer (Mahalanobis) another site."""
+    ys, xs = np.mgrid[0:skin.shape[0], 0:skin.shape[1]].astype(float)
+
+    def mahal2(j):
+        dx, dy = xs - sites[j, 0], ys - sites[j, 1]
+        return sites[j, 2] * dx * dx + 2.0 * sites[j, 3] * dx * dy + sites[j, 4] * dy * dy
+
+    dk = mahal2(k)
+    other = np.zeros(skin.shape, bool)
+    for j in range(len(sites)):
+        if j != k and np.isfinite(sites[j, 0]):
+            other |= mahal2(j) < dk
+    return np.where(other & (skin > 0), 0.0, skin).astype(np.float32)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_exclusive_boundary_search_equals_search_on_the_blobs_own_pixels(seed):
+    """deform_ellipse with sites tests each pixel's owner once around the ellipse: the same
+    as searching a map that holds only the blob's own pixels (here also near the image edge)."""
+    rng = np.random.default_rng(seed)
+    h, w = 60, 80
+    skin = np.zeros((h, w), np.float32)
+    sites = np.full((3, 5), np.nan)
+    for j in range(3):
+        c = rng.uniform([-5, -5], [w + 5, h + 5]) if j == 0 else sites[0, :2] + rng.uniform(-20, 20, 2)
+        a, b = rng.uniform(3, 12, 2)
+        cv2.ellipse(skin, (int(c[0]), int(c[1])), (int(a), int(b)), float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+        sites[j] = (c[0], c[1], 1 / (a * a / 4 + 1), rng.uniform(-0.002, 0.002), 1 / (b * b / 4 + 1))
+    if rng.random() < 0.3:
+        sites[2] = np.nan                                         # an absent blob
+    k = int(rng.integers(0, 2))
+    mean = sites[k, :2] + rng.uniform(-2, 2, 2)
+    cov = np.diag(rng.uniform(4, 30, 2))
+    sil = (rng.random((h, w)) < 0.5).astype(np.uint8)
+    got_contour, ref_contour = np.zeros((32, 2)), np.zeros((32, 2))
+    got = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.4, 3.0, 2, 20, got_contour, sites, k)
+    ref = deform_ellipse(_own_map(skin, sites, k), sil, mean, cov, 2.0, 32, 0.4, 3.0, 2, 20, ref_contour, _NO_SITES, 0)
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(got_contour, ref_contour, rtol=1e-12, atol=1e-9)
+
+
+def _random_regions(rng, shape=(70, 90), n=6):
+    skin = np.zeros(shape, np.float32)
+    for _ in range(n):
+        c = (int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0])))
+        cv2.circle(skin, c, int(rng.integers(1, 9)), 1.0, -1)
+    return skin
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_region_stats_match_opencv(seed):
+    mask = (_random_regions(np.random.default_rng(seed)) > 0).view(np.uint8)
+    n, labels, ref, ref_centroids = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+    stats = np.empty((n, 7), np.int64)
+    region_stats(labels, n, stats)
+    np.testing.assert_array_equal(stats[1:, :2], ref[1:, :2])                    # x_min, y_min
+    np.testing.assert_array_equal(stats[1:, 2:4] - stats[1:, :2] + 1, ref[1:, 2:4])  # width, height
+    np.testing.assert_array_equal(stats[1:, 4], ref[1:, 4])
+    np.testing.assert_allclose(stats[1:, 5:7] / stats[1:, 4:5], ref_centroids[1:])
+
+
+def _reference_snap(skin, box, centers, gate, min_area):
+    """Region snap in NumPy + itertools (the tracker's earlier implementation)."""
+    have = np.isfinite(centers).all(axis=1)
+    if have.sum() < 2:
+        return centers
+    ks = np.flatnonzero(have)
+    cs, gs = centers[ks], gate[ks]
+    d2 = ((cs[:, None, :] - cs[None, :, :]) ** 2).sum(-1)
+    if (d2 < (SNAP_NEAR_GATES * (gs[:, None] + gs[None, :])) ** 2).sum() <= len(ks):
+        return centers
+    x0, y0, x1, y1 = box
+    reach_px = SNAP_WINDOW_GATES * gs.max()
+    wx0, wy0 = max(x0, int(cs[:, 0].min() - reach_px)), max(y0, int(cs[:, 1].min() - reach_px))
+    wx1, wy1 = min(x1, int(cs[:, 0].max() + reach_px) + 1), min(y1, int(cs[:, 1].max() + reach_px) + 1)
+    if wx1 - wx0 < 2 or wy1 - wy0 < 2:
+        return centers
+    mask = (skin[wy0:wy1, wx0:wx1] >= 0.5).view(np.uint8)
+    _, _, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+    big = np.flatnonzero(stats[1:, 4] >= min_area) + 1
+    if len(big) < len(ks):
+        return centers
+    cc = cent[big] + (wx0, wy0)
+    half = 0.5 * np.maximum(stats[big, 2], stats[big, 3])
+    d = np.sqrt(((cs[:, None, :] - cc[None, :, :]) ** 2).sum(-1))
+    reach = d <= gs[:, None] + half[None, :]
+    cand = np.flatnonzero(reach.any(axis=0))
+    if len(cand) < len(ks):
+        return centers
+    if len(cand) > SNAP_MAX_REGIONS:
+        cand = cand[np.argsort(d[:, cand].min(axis=0), kind="stable")[:SNAP_MAX_REGIONS]]
+    best, best_cost = None, np.inf
+    for perm in itertools.permutations(range(len(cand)), len(ks)):
+        if all(reach[i, cand[r]] for i, r in enumerate(perm)):
+            cost = sum(d[i, cand[r]] for i, r in enumerate(perm))
+            if cost < best_cost:
+                best, best_cost = perm, cost
+    if best is None:
+        return centers
+    out = centers.copy()
+    out[ks] = cc[cand[list(best)]]
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_region_snap_matches_reference(seed):
+    rng = np.random.default_rng(seed)
+    skin = _random_regions(rng, n=int(rng.integers(1, 10)))
+    K = int(rng.integers(2, 4))
+    centers = rng.uniform((0, 0), (90, 70), (K, 2))
+    if rng.random() < 0.3:
+        centers[0] = np.nan
+    gate = rng.uniform(4, 20, K)
+    box = (int(rng.integers(0, 10)), int(rng.integers(0, 10)), int(rng.integers(60, 91)), int(rng.integers(50, 71)))
+    tr = BlobTracker(("hand_l", "hand_r", "head")[:K])
+    got = tr._snap_to_regions(skin, box, centers, gate)
+    np.testing.assert_array_equal(got, _reference_snap(skin, box, centers, gate, tr.params.acquire_min_area_px))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_acquire_candidates_match_reference(seed):
+    """Unclaimed regions, largest first (ties in label order), at most four."""
+    rng = np.random.default_rng(seed)
+    skin = _random_regions(rng, n=int(rng.integers(1, 12)))
+    x0, y0 = int(rng.integers(0, 5)), int(rng.integers(0, 5))
+    mask = (skin[y0:, x0:] >= 0.5).view(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+    sums = np.zeros((3, 6))
+    sums[:, 0] = 10.0
+    sums[:, 1:3] = rng.uniform((0, 0), (90, 70), (3, 2)) * 10.0
+    found = rng.random(3) < 0.7
+    ref = []
+    for r in range(1, n):
+        xa, ya, bw, bh, area = stats[r]
+        xb, yb = xa + bw - 1, ya + bh - 1
+        claimed = any(found[k] and x0 + xa - 1 <= sums[k, 1] / sums[k, 0] <= x0 + xb + 1
+                      and y0 + ya - 1 <= sums[k, 2] / sums[k, 0] <= y0 + yb + 1 for k in range(3))
+        if area >= 10 and not claimed:
+            ref.append((area, x0 + 0.5 * (xa + xb), y0 + 0.5 * (ya + yb), 0.5 * max(xb - xa, yb - ya) + 1.0))
+    ref = sorted(ref, key=lambda t: -t[0])[:4]
+    cand = np.empty((4, 4))
+    m = acquire_candidates(labels, n, x0, y0, sums, found, 10.0, cand)
+    assert m == len(ref)
+    np.testing.assert_array_equal(cand[:m], np.array(ref).reshape(-1, 4))

@@ -4,6 +4,8 @@ import cv2
 import numpy as np
 import pytest
 from conftest import make_scene
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.geometry.rig import ring_rig
@@ -95,6 +97,34 @@ def test_torso_ridge_centre_of_a_trunk_shape():
         assert abs(xy[1] - 130) < 4.0 + step
         assert thick == pytest.approx(30.5, abs=1.5 * step)
     assert np.isnan(torso_point(np.zeros((5, 5), np.uint8))[0]).all()
+
+
+def _reference_torso_point(sil, ridge_frac, step):
+    """The torso point with OpenCV's minMaxLoc and moments."""
+    sil = np.ascontiguousarray(sil[::step, ::step])
+    dist = cv2.distanceTransform(sil, cv2.DIST_L2, cv2.DIST_MASK_5)
+    _, peak, _, _ = cv2.minMaxLoc(dist)
+    m = cv2.moments((dist >= ridge_frac * peak).view(np.uint8), binaryImage=True)
+    n = m["m00"]
+    xy = np.array([m["m10"] / n, m["m01"] / n]) * step
+    cov = (np.array([[m["mu20"], m["mu11"]], [m["mu11"], m["mu02"]]]) / n + np.eye(2) / 12.0) * step * step
+    return xy, cov, peak * step
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([1, 2]), st.sampled_from([0.5, 0.85, 1.0]))
+def test_torso_point_matches_opencv_moments(seed, step, frac):
+    rng = np.random.default_rng(seed)
+    sil = np.zeros((90, 70), np.uint8)
+    for _ in range(3):
+        c = (int(rng.integers(5, 65)), int(rng.integers(5, 85)))
+        cv2.ellipse(sil, c, (int(rng.integers(3, 25)), int(rng.integers(3, 40))), float(rng.uniform(0, 180)),
+                    0, 360, 255, -1)
+    xy, cov, thick = torso_point(sil, frac, step)
+    ref_xy, ref_cov, ref_thick = _reference_torso_point(sil, frac, step)
+    np.testing.assert_allclose(xy, ref_xy, rtol=1e-12)
+    np.testing.assert_allclose(cov, ref_cov, rtol=1e-9, atol=1e-9)
+    assert thick == ref_thick
 
 
 @pytest.mark.slow
