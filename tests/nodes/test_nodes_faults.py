@@ -81,8 +81,11 @@ def test_faults_on_a_running_cluster(tmp_path, tmp_path_factory, data_dir):
         after = [p for p in mon.poses_since(t_kill) if p.t_trigger_ns > t_kill][:10]
         frames = [p.frame for p in after]
         assert frames == list(range(frames[0], frames[0] + len(frames))), frames   # no frame lost
-        assert all("cam_2" in p.cameras_missing and "cam_1" in p.cameras_used for p in after)
-        lat = [p.latency_ms for p in after]
+        assert all("cam_1" in p.cameras_used for p in after)
+        # until the hot spare takes over (a few frames), every pose names the dead camera
+        n_missing = next((i for i, p in enumerate(after) if "cam_2" not in p.cameras_missing), len(after))
+        assert n_missing >= 1, [p.cameras_missing for p in after]
+        lat = [p.latency_ms for p in after[:n_missing]]
         print(f"after kill: pose latency ms {np.round(lat, 1)} (frame period {PERIOD_S * 1e3:.1f} ms)")
         # the fusion waits for a dead camera at most the deadline (0.8 of a period)
         assert np.median(lat) <= PERIOD_S * 1e3
