@@ -28,8 +28,8 @@ import threading
 import time
 
 from nodes.messages import Background, Cues, Frame, Keys, Prediction, Preview, Trigger
-from nodes.runtime import IdleGC, NodeRuntime, ThreadPriority, base_parser, load_rig, setup_logging
-from nodes.transport import direct_callback, open_session
+from nodes.runtime import IdleGC, NodeRuntime, ThreadPriority, base_parser, load_rig, node_session, setup_logging
+from nodes.transport import direct_callback
 
 log = logging.getLogger(__name__)
 
@@ -263,16 +263,13 @@ def main(argv: list[str] | None = None) -> int:
     cv2.setNumThreads(args.cv_threads)
     rig = load_rig(args)
     camera = rig[args.camera]
-    node = args.node or f"worker-{camera.name}"
-    keys = Keys(args.rig_name)
     from nodes.sources import open_source
 
     t = [time.perf_counter()]
     source = open_source(args.source, camera, args.fps)
-    with open_session(args) as session:
+    with node_session(args, "camera", args.node or f"worker-{camera.name}") as rt:
         t.append(time.perf_counter())
-        rt = NodeRuntime(session, keys, node, "camera")
-        rt.install_signal_handlers()
+        session, keys, node = rt.session, rt.keys, rt.node
         rt.publish_status("starting", force=True)
         try:
             backgrounds = source.backgrounds()

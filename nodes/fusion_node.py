@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from nodes.messages import Cues, Keys, Pose, Prediction, Trigger
-from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, setup_logging
-from nodes.transport import direct_callback, open_session
+from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
+from nodes.transport import direct_callback
 
 log = logging.getLogger(__name__)
 
@@ -348,17 +348,14 @@ def main(argv: list[str] | None = None) -> int:
     from mocap_rt.body.skeleton import read_bone_lengths
 
     bones = read_bone_lengths(args.bones) if args.bones else None   # fails before joining
-    keys = Keys(args.rig_name)
-    with open_session(args) as session:
-        rt = NodeRuntime(session, keys, args.node, "fusion")
-        rt.install_signal_handlers()
+    with node_session(args, "fusion") as rt:
         rt.publish_status("starting", force=True)
-        fps = args.fps or float(rig.metadata.get("fps", 30.0))
+        fps = args.fps or rig_fps(rig)
         log.info("fusion: warm-up took %.2f s", warm_up(rig, fps))
         tracker = make_tracker(rig, fps, bones)
         rt.enter_realtime(args.rt_priority)
         rt.publish_status("ready", force=True)
-        run_fusion(session, keys, rig, tracker, rt, args.deadline_frac)
+        run_fusion(rt.session, rt.keys, rig, tracker, rt, args.deadline_frac)
         rt.publish_status("stopping", force=True)
     return 0
 

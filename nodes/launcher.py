@@ -225,7 +225,9 @@ class Launcher:
             from mocap_rt.io.recording import Recording
 
             return float(Recording(value).fps)
-        return float(self.rig.metadata.get("fps", 30.0))
+        from nodes.runtime import rig_fps
+
+        return rig_fps(self.rig)
 
     def _replay_frames(self, kind: str, value: str) -> int | None:
         if kind != "replay":

@@ -31,8 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from nodes.messages import Background, Frame, Keys, Pose
-from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
-from nodes.transport import open_session
+from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
 
 log = logging.getLogger(__name__)
 
@@ -292,13 +291,10 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     rig = load_rig(args)
-    fps = args.fps or float(rig.metadata.get("fps", 30.0))
-    keys = Keys(args.rig_name)
-    with open_session(args) as session:
-        rt = NodeRuntime(session, keys, args.node, "recorder")
-        rt.install_signal_handlers()
+    fps = args.fps or rig_fps(rig)
+    with node_session(args, "recorder") as rt:
         rt.publish_status("ready", force=True)
-        run_recorder(session, keys, rig, args.out, fps, args.raw, rt)
+        run_recorder(rt.session, rt.keys, rig, args.out, fps, args.raw, rt)
         rt.publish_status("stopping", force=True)
     return 0
 

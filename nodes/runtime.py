@@ -17,13 +17,15 @@ import statistics
 import threading
 import time
 from collections import deque
+from contextlib import contextmanager
 from pathlib import Path
 
 from nodes.messages import Decoder, Keys, Status
-from nodes.transport import add_zenoh_args
+from nodes.transport import add_zenoh_args, open_session
 
 log = logging.getLogger(__name__)
 
+DEFAULT_FPS = 30.0          # a rig's frame rate when its metadata has none
 STATUS_PERIOD_S = 1.0       # how often a node reports its status
 RATE_WINDOW_S = 2.0         # fps / processing time are measured over this window
 
@@ -51,6 +53,11 @@ def base_parser(description: str, node_default: str) -> argparse.ArgumentParser:
 def setup_logging(level: str) -> None:
     logging.basicConfig(level=getattr(logging, str(level).upper(), logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s[%(process)d]: %(message)s")
+
+
+def rig_fps(rig) -> float:
+    """The rig's frame rate: ``[metadata] fps``, else ``DEFAULT_FPS``."""
+    return float(rig.metadata.get("fps", DEFAULT_FPS))
 
 
 def load_rig(args: argparse.Namespace):
@@ -91,6 +98,16 @@ def enter_realtime(priority: int) -> bool:
                 return False
     log.info("SCHED_FIFO priority %d on %d thread(s)", param.sched_priority, done)
     return True
+
+
+@contextmanager
+def node_session(args: argparse.Namespace, role: str, node: str | None = None):
+    """A node's Zenoh session and its ``NodeRuntime`` (``rt.session``, ``rt.keys``; SIGINT
+    and SIGTERM set ``rt.stop``), from the flags of ``base_parser`` after ``load_rig``."""
+    with open_session(args) as session:
+        rt = NodeRuntime(session, Keys(args.rig_name), node or args.node, role)
+        rt.install_signal_handlers()
+        yield rt
 
 
 class ThreadPriority:

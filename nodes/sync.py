@@ -18,8 +18,7 @@ import threading
 import time
 
 from nodes.messages import Keys, Pose, Trigger
-from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, setup_logging
-from nodes.transport import open_session
+from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
 
 log = logging.getLogger(__name__)
 
@@ -150,18 +149,15 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     rig = load_rig(args)
-    fps = args.fps if args.fps is not None else float(rig.metadata.get("fps", 30.0))
-    keys = Keys(args.rig_name)
-    with open_session(args) as session:
-        rt = NodeRuntime(session, keys, args.node, "sync")
-        rt.install_signal_handlers()
+    fps = args.fps if args.fps is not None else rig_fps(rig)
+    with node_session(args, "sync") as rt:
         rt.publish_status("ready", force=True)
         if args.expect_peers > 0:
-            wait_for_peers(session, args.expect_peers, rt)
+            wait_for_peers(rt.session, args.expect_peers, rt)
         if args.start_delay > 0:
             rt.stop.wait(args.start_delay)
         rt.enter_realtime(args.rt_priority)
-        sent = run_sync(session, keys, fps, args.frames, args.start_frame, rt)
+        sent = run_sync(rt.session, rt.keys, fps, args.frames, args.start_frame, rt)
         log.info("sync: %d triggers sent, %d slots skipped", sent, rt.drops)
     return 0
 

@@ -31,8 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from nodes.messages import Cues, Keys, Pose, Preview
-from nodes.runtime import NodeRuntime, base_parser, load_rig, setup_logging
-from nodes.transport import open_session
+from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, setup_logging
 
 log = logging.getLogger(__name__)
 
@@ -269,14 +268,11 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.log_level)
     parse_rerun(args.rerun)
     rig = load_rig(args)
-    keys = Keys(args.rig_name)
     web = start_sink(args.rerun)
     try:
-        with open_session(args) as session:
-            rt = NodeRuntime(session, keys, args.node, "viewer")
-            rt.install_signal_handlers()
+        with node_session(args, "viewer") as rt:
             rt.publish_status("ready", force=True)
-            run_viewer(session, keys, rig, rt)
+            run_viewer(rt.session, rt.keys, rig, rt)
             rt.publish_status("stopping", force=True)
     finally:
         # no rr.disconnect(): it can block ~10 s on a served stream; run_viewer flushed
