@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_perception:
         _closed_loop(args)
     allms = np.concatenate(ms_analytic)
-    print(f"\n[3] speed per frame (BodyTracker.step: triangulation + outlier rejection + filter + IK + BVH row):")
+    print("\n[3] speed per frame (BodyTracker.step: triangulation + outlier rejection + filter + IK + BVH row):")
     print(f"  analytic IK: median {np.median(allms):.3f} ms, p95 {np.percentile(allms, 95):.3f} ms "
           f"(target <= {TARGETS['fusion_ms']} ms)")
     allc = np.concatenate(ms_ccd)

@@ -254,7 +254,6 @@ def fix_left_right(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, wei
     """
     uv = uv.copy()
     w = weights.copy()
-    C = uv.shape[0]
     n_fixed = 0
     have_ref = reference is not None
     ref_uv = proj.project(np.where(np.isfinite(reference), reference, 0.0))[0] if have_ref else None

@@ -35,7 +35,6 @@ def test_cues_of_a_synthetic_person_with_shadow_and_flicker():
 
 
 def test_tracking_a_moving_person_across_roi_updates():
-    bg = None
     p = None
     for f, cx in enumerate(np.linspace(200, 440, 25)):
         sc = make_scene(cx=float(cx), hand_l=(cx + 95, 200 - f), hand_r=(cx - 95, 200 + f))
