@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mocap_rt.perception.blob_kernels import (N_MOMENTS, acquire_candidates, label_and_refine, predict_gates,
-                                             snap_regions, snap_window, update_tracks)
+from mocap_rt.perception.blob_kernels import N_MOMENTS, label_and_refine, predict_gates, update_tracks
+from mocap_rt.perception.region_kernels import acquire_candidates, snap_regions, snap_window
 
 log = logging.getLogger(__name__)
 

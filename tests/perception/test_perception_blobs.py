@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mocap_rt.perception.blob_kernels import acquire_candidates, deform_ellipse, label_moments, region_stats
+from mocap_rt.perception.blob_kernels import deform_ellipse, label_moments
+from mocap_rt.perception.region_kernels import acquire_candidates, region_stats
 from mocap_rt.perception.blobs import (SNAP_MAX_REGIONS, SNAP_NEAR_GATES, SNAP_WINDOW_GATES, BlobParams,
                                        BlobTracker)
 
