@@ -30,6 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap_rt.body.bvh_export import bvh_skeleton_of
+from mocap_rt.body.skeleton import BoneLengths, write_bone_lengths
+from mocap_rt.io.bvh import BvhStreamWriter
 from nodes.messages import Background, Frame, Keys, Pose
 from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
 
@@ -184,10 +187,6 @@ class PoseFiles:
 
     def add(self, pose: Pose) -> None:
         """Record one pose; ValueError (nothing written) for an old frame or bad values."""
-        from mocap_rt.body.bvh_export import bvh_skeleton_of
-        from mocap_rt.body.skeleton import BoneLengths, write_bone_lengths
-        from mocap_rt.io.bvh import BvhStreamWriter
-
         if pose.frame <= self.last_frame:
             raise ValueError(f"pose {pose.frame} is not newer than {self.last_frame}")
         if self._bones is None or not np.array_equal(pose.bones, self._bones):
