@@ -27,6 +27,7 @@ import sys
 import threading
 import time
 
+from nodes.frame_window import FrameWindow
 from nodes.messages import Background, Cues, Frame, Keys, Prediction, Preview, Trigger
 from nodes.runtime import IdleGC, NodeRuntime, ThreadPriority, base_parser, load_rig, node_session, setup_logging
 from nodes.transport import direct_callback
@@ -146,16 +147,17 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
 
     name = camera.name
     slot, preds = TriggerSlot(), PredictionBox()
+    window = FrameWindow(keys.rig, rt.node)     # triggers that fit, predictions near the newest
 
     def on_trigger(sample) -> None:
         recv_ns = time.monotonic_ns()
         trig = rt.decoder.decode(sample.payload, Trigger)
-        if trig is not None:
+        if trig is not None and window.accept(trig):
             slot.put(trig, recv_ns)
 
     def on_prediction(sample) -> None:
         msg = rt.decoder.decode(sample.payload, Prediction)
-        if msg is not None and msg.prediction.camera == name:
+        if msg is not None and msg.prediction.camera == name and window.accept(msg):
             preds.put(msg.prediction)
             slot.poke()
 
@@ -194,6 +196,7 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             wait = TRIGGER_WAIT_S if deferred is None else max(0.0, deferred[2] - time.monotonic())
             trig = slot.take(wait)
             rt.drops = slot.overwritten
+            rt.extra.update(window.counters())
             if deferred is not None and (trig is not None or preds.get(deferred[0] + 1) is not None
                                          or time.monotonic() >= deferred[2]):
                 if trig is None:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nodes.frame_window import FrameWindow
 from nodes.messages import Cues, Keys, Pose, Prediction, Trigger
 from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
 from nodes.transport import direct_callback
@@ -269,18 +270,19 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
     rig_cameras = list(rig.names)
     gather = FrameGatherer(rig_cameras, deadline_frac)
     inbox: queue.SimpleQueue = queue.SimpleQueue()
+    window = FrameWindow(keys.rig, rt.node)     # only cues of triggered frames near the newest
 
     def on_trigger(sample) -> None:
         recv_ns = time.monotonic_ns()
         msg = rt.decoder.decode(sample.payload, Trigger)
-        if msg is not None:
-            inbox.put((msg, recv_ns))
+        for item in window.accept(msg, (msg, recv_ns)) if msg is not None else ():
+            inbox.put(item)
 
     def on_cues(sample) -> None:
         recv_ns = time.monotonic_ns()
         msg = rt.decoder.decode(sample.payload, Cues)
-        if msg is not None:
-            inbox.put((msg, recv_ns))
+        for item in window.accept(msg, (msg, recv_ns)) if msg is not None else ():
+            inbox.put(item)
 
     pose_pub = session.declare_publisher(keys.pose, express=True)
     pred_pubs = {c: session.declare_publisher(keys.prediction(c), express=True) for c in rig_cameras}
@@ -317,6 +319,7 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
                 gcs.idle()           # published, and no answers for a later frame yet
             rt.drops = gather.frames_dropped + int(rt.extra.get("fusion_errors", 0))
             rt.extra["late_cues"] = gather.late_cues
+            rt.extra.update(window.counters())
             rt.extra["cameras_live"] = len(gather.live(time.monotonic_ns()))
             rt.publish_status()
     finally:

@@ -28,6 +28,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from nodes.frame_window import window_drops
 from nodes.messages import Keys
 from nodes.monitor import ServiceMonitor, percentiles
 from nodes.sources import parse_source
@@ -556,6 +557,7 @@ class Launcher:
             "frames_triggered": trig, "poses_published": poses, "frames_dropped": no_pose,
             "node_drops": sum(v["drops"] for v in nodes.values()),
             "decode_drops": sum(v["decode_drops"] for v in nodes.values()) + (m.decoder.total_drops if m else 0),
+            "frame_window_drops": window_drops(table, *([m.window] if m else [])),
             "poses_with_missing_cameras": missing_any,
             "latency_ms": {k: round(v, 3) for k, v in lat.items()},
             "stages_ms": ({k: {q: round(v, 3) for q, v in d.items()} for k, d in m.stage_percentiles().items()}

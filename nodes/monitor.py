@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nodes.frame_window import FrameWindow
 from nodes.messages import Decoder, Keys, Pose, Status, Trigger
 
 ALIVE_S = 2.0              # a node whose status is older than this is not alive
@@ -52,6 +53,7 @@ class ServiceMonitor:
     def __init__(self, session, keys: Keys) -> None:
         self.keys = keys
         self.decoder = Decoder("monitor")
+        self.window = FrameWindow(keys.rig, "monitor")   # poses count only for triggered frames
         self._lock = threading.Lock()
         self.triggers: dict[int, int] = {}          # frame -> trigger mono ns
         self.poses: deque[PoseEvent] = deque(maxlen=POSE_HISTORY)
@@ -63,19 +65,20 @@ class ServiceMonitor:
                       session.declare_subscriber(keys.status(), self._on_status)]
 
     def _on_trigger(self, sample) -> None:
-        m = self.decoder.decode(sample.payload, Trigger)
-        if m is not None:
-            with self._lock:
-                self.triggers[m.frame] = m.t_mono_ns
+        self._ingest(self.decoder.decode(sample.payload, Trigger), time.monotonic_ns())
 
     def _on_pose(self, sample) -> None:
-        now = time.monotonic_ns()
-        m = self.decoder.decode(sample.payload, Pose)
-        if m is not None:
-            ev = PoseEvent(m.frame, m.t_trigger_mono_ns, m.t_pub_mono_ns, now, m.cameras_used, m.cameras_missing,
-                           dict(m.timings_ms))
+        self._ingest(self.decoder.decode(sample.payload, Pose), time.monotonic_ns())
+
+    def _ingest(self, msg, now: int) -> None:
+        """A trigger, or a pose of a triggered frame (``FrameWindow``; forged ones are dropped)."""
+        for m, t_recv in self.window.accept(msg, (msg, now)) if msg is not None else ():
             with self._lock:
-                self.poses.append(ev)
+                if isinstance(m, Trigger):
+                    self.triggers[m.frame] = m.t_mono_ns
+                    continue
+                self.poses.append(PoseEvent(m.frame, m.t_trigger_mono_ns, m.t_pub_mono_ns, t_recv,
+                                            m.cameras_used, m.cameras_missing, dict(m.timings_ms)))
                 self.pose_frames.add(m.frame)
 
     def _on_status(self, sample) -> None:

@@ -33,7 +33,8 @@ import numpy as np
 from mocap_rt.body.bvh_export import bvh_skeleton_of
 from mocap_rt.body.skeleton import BoneLengths, write_bone_lengths
 from mocap_rt.io.bvh import BvhStreamWriter
-from nodes.messages import Background, Frame, Keys, Pose
+from nodes.frame_window import FrameWindow
+from nodes.messages import Background, Frame, Keys, Pose, Trigger
 from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
 
 log = logging.getLogger(__name__)
@@ -219,12 +220,13 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
     stream = RawStream(stream_path, rig, fps) if raw else None
     log.info("recorder: writing %s, %s%s", npz_path, bvh_path, f", {stream_path}" if raw else "")
     inbox: queue.SimpleQueue = queue.SimpleQueue()
+    window = FrameWindow(keys.rig, rt.node)     # only poses of triggered frames near the newest
 
     def subscriber(msg_type):
         def on_sample(sample) -> None:
             msg = rt.decoder.decode(sample.payload, msg_type)
-            if msg is not None:
-                inbox.put(msg)
+            for item in window.accept(msg) if msg is not None else ():
+                inbox.put(item)
         return on_sample
 
     def handle(msg) -> None:
@@ -241,7 +243,8 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
         elif isinstance(msg, Background) and stream is not None:
             stream.on_background(msg)
 
-    subs = [session.declare_subscriber(keys.pose, subscriber(Pose))]
+    subs = [session.declare_subscriber(keys.pose, subscriber(Pose)),
+            session.declare_subscriber(keys.trigger, subscriber(Trigger))]
     if raw:
         subs += [session.declare_subscriber(keys.frame(), subscriber(Frame)),
                  session.declare_subscriber(keys.background(), subscriber(Background))]
@@ -261,6 +264,7 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
                 poses.log.snapshot()
                 last_snap = now
             rt.extra["poses"] = len(poses.log)
+            rt.extra.update(window.counters())
             rt.publish_status()
     finally:
         for s in subs:

@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nodes.messages import Cues, Keys, Pose, Preview
+from nodes.frame_window import FrameWindow
+from nodes.messages import Cues, Keys, Pose, Preview, Trigger
 from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, setup_logging
 
 log = logging.getLogger(__name__)
@@ -213,14 +214,18 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
             rt.drops += 1
             inbox.put_nowait(item)
 
+    window = FrameWindow(keys.rig, rt.node)     # only poses and cues of triggered frames
+
     def handler(cls):
         def cb(sample) -> None:
             msg = rt.decoder.decode(sample.payload, cls)
-            if msg is not None:
-                enqueue(msg)
+            for item in window.accept(msg) if msg is not None else ():
+                if not isinstance(item, Trigger):
+                    enqueue(item)
         return cb
 
-    subs = [session.declare_subscriber(keys.pose, handler(Pose)),
+    subs = [session.declare_subscriber(keys.trigger, handler(Trigger)),
+            session.declare_subscriber(keys.pose, handler(Pose)),
             session.declare_subscriber(keys.cues(), handler(Cues)),
             session.declare_subscriber(keys.preview(), handler(Preview))]
     rt.publish_status("running", force=True)
@@ -230,6 +235,7 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
             try:
                 msg = inbox.get(timeout=0.2)
             except queue.Empty:
+                rt.extra.update(window.counters())
                 rt.publish_status()
                 continue
             t0 = time.perf_counter()
@@ -245,6 +251,7 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
                 n += 1
                 if n <= 5:
                     log.warning("viewer: could not log %s: %s", type(msg).__name__, exc)
+            rt.extra.update(window.counters())
             rt.publish_status()
     finally:
         for s in subs:
