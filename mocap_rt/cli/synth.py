@@ -42,7 +42,12 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "synth", help="render a multi-camera studio recording with ground truth from a BVH clip",
         description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--motion", required=True, help="BVH clip (CMU, Bandai-Namco or MakeHuman skeleton)")
+    p.add_argument("--motion", required=True,
+                   help="BVH clip (CMU, Bandai-Namco or MakeHuman skeleton), or procedural:NAME[:SEED] "
+                        "(generated motion, e.g. procedural:jumping_jacks:3; docs/studio.md lists the names)")
+    p.add_argument("--variant", default=None,
+                   help="reversed (played backwards), mirrored (left/right mirror image), turn:DEG_PER_S "
+                        "(turning by a heading ramp); join several with '+'")
     p.add_argument("--out", required=True, help="new recording directory")
     p.add_argument("--rig", choices=("ring", "desktop"), default="ring",
                    help="camera ring around the subject, or the 2-camera desktop rig (upper body)")
@@ -86,9 +91,9 @@ def run(args: argparse.Namespace) -> int:
     from mocap_rt.studio.scene import StudioScene
     from mocap_rt.studio.synth import make_rig, synthesize
 
-    motion = Path(args.motion)
-    if not motion.is_file():
-        raise FileNotFoundError(f"--motion: no such file {motion}")
+    from mocap_rt.studio.variants import load_motion
+
+    motion, motion_name = load_motion(args.motion, args.variant)
     if (Path(args.out) / "recording.toml").exists():
         raise ValueError(f"--out: {args.out} already holds a recording; choose a new directory")
     if args.fps <= 0 or args.cameras < 1:
@@ -121,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         stats = synthesize(motion, args.out, rig=rig, fps=args.fps, seconds=args.seconds, start_s=args.start,
                            seed=args.seed, placement=args.placement, scene=scene, config=config,
                            truth_masks=args.truth_masks, codec=args.codec, jpeg_quality=args.jpeg_quality,
-                           threads=args.threads, progress=progress)
+                           threads=args.threads, progress=progress, motion_name=motion_name)
     finally:
         if bar is not None:
             bar.close()

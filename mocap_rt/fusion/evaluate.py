@@ -105,3 +105,51 @@ def truth_camera_cues(truth: dict, camera_names: list[str], t_index: int, frame:
         cov = np.where(vis[:, None, None], np.eye(2) * max(noise_px, 0.5) ** 2, np.nan)
         out[name] = CameraCues(name, frame, xy, cov, np.where(vis, 100.0, 0.0), vis.astype(np.float64))
     return out
+
+
+# Joint angles read geometrically from joint positions, degrees (``anatomical_angles``).
+ANGLE_NAMES: tuple[str, ...] = tuple(f"{a}_{s}" for a in ("hip_flex", "hip_abd", "knee_flex", "shoulder_flex",
+                                                           "shoulder_abd", "elbow_flex") for s in ("l", "r"))
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def trunk_axes(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(forward, left, up) unit vectors (each (F, 3)) of the trunk from joints (F, 20, 3) in
+    JOINT_NAMES order: up = pelvis -> neck, left = hip_r -> hip_l made perpendicular to up,
+    forward = left x up (the right-handed body frame)."""
+    j = {n: i for i, n in enumerate(JOINT_NAMES)}
+    up = _unit_rows(joints[:, j["neck"]] - joints[:, j["pelvis"]])
+    lat = joints[:, j["hip_l"]] - joints[:, j["hip_r"]]
+    left = _unit_rows(lat - up * np.sum(lat * up, axis=-1, keepdims=True))
+    return np.cross(left, up), left, up
+
+
+def anatomical_angles(joints: np.ndarray) -> dict[str, np.ndarray]:
+    """Joint angles (F,) degrees per ``ANGLE_NAMES``, from joint positions (F, 20, 3), in the
+    trunk frame of ``trunk_axes``:
+
+    * ``hip_flex`` / ``shoulder_flex``: angle of the thigh / upper arm from straight down,
+      in the sagittal plane, positive forward: ``atan2(d . fwd, -d . up)``;
+    * ``hip_abd`` / ``shoulder_abd``: its angle out of the sagittal plane, positive away from
+      the midline: ``asin(d . out / |d|)``, out = left for the left side, right for the right;
+    * ``knee_flex`` / ``elbow_flex``: angle between the two segments (0 = straight).
+    NaN where a joint is NaN.
+    """
+    joints = np.asarray(joints, dtype=np.float64)
+    fwd, left, up = trunk_axes(joints)
+    j = {n: i for i, n in enumerate(JOINT_NAMES)}
+    out = {}
+    for s, sgn in (("l", 1.0), ("r", -1.0)):
+        for a, b, c, first, second in (("hip", "knee", "ankle", "hip", "knee"),
+                                       ("shoulder", "elbow", "wrist", "shoulder", "elbow")):
+            d = joints[:, j[f"{b}_{s}"]] - joints[:, j[f"{a}_{s}"]]
+            e = joints[:, j[f"{c}_{s}"]] - joints[:, j[f"{b}_{s}"]]
+            dn = np.linalg.norm(d, axis=-1)
+            out[f"{first}_flex_{s}"] = np.degrees(np.arctan2(np.sum(d * fwd, -1), -np.sum(d * up, -1)))
+            out[f"{first}_abd_{s}"] = np.degrees(np.arcsin(np.clip(sgn * np.sum(d * left, -1) / dn, -1, 1)))
+            cosb = np.sum(d * e, -1) / (dn * np.linalg.norm(e, axis=-1))
+            out[f"{second}_flex_{s}"] = np.degrees(np.arccos(np.clip(cosb, -1, 1)))
+    return {n: out[n] for n in ANGLE_NAMES}

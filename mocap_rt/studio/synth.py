@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap_rt.geometry.rig import Rig, desktop_rig, ring_rig
-from mocap_rt.io.bvh import read_bvh
+from mocap_rt.io.bvh import BvhClip, read_bvh
 from mocap_rt.io.recording import DEFAULT_CODEC, DEFAULT_JPEG_QUALITY, RecordingWriter
 from mocap_rt.names import CUE_JOINT_INDEX, CUE_NAMES, JOINT_NAMES
 from mocap_rt.studio.body_map import POINT_NAMES, body_motion, bone_names
@@ -54,24 +54,27 @@ def make_rig(layout: str = "ring", n_cameras: int = 6, size: tuple[int, int] = (
     raise ValueError(f"rig layout must be 'ring' or 'desktop', got {layout!r}")
 
 
-def synthesize(motion: str | Path, out: str | Path, *, rig: Rig | None = None, fps: float = 30.0,
+def synthesize(motion: str | Path | BvhClip, out: str | Path, *, rig: Rig | None = None, fps: float = 30.0,
                seconds: float | None = None, start_s: float = 0.0, seed: int = 0,
                placement: str = "centre", scene: StudioScene | None = None,
                config: RenderConfig | None = None, truth_masks: bool = True,
                codec: str = DEFAULT_CODEC, jpeg_quality: int = DEFAULT_JPEG_QUALITY,
                n_backgrounds: int = DEFAULT_N_BACKGROUNDS, threads: int = 2,
-               progress: Callable[[int], None] | None = None) -> SynthStats:
-    """Render ``motion`` (a BVH file) into a new recording directory ``out``.
+               progress: Callable[[int], None] | None = None, motion_name: str | None = None) -> SynthStats:
+    """Render ``motion`` (a BVH file or clip) into a new recording directory ``out``.
 
     rig : default ``make_rig()`` (6-camera ring, 640x480). fps : output rate, Hz.
     seconds : duration from ``start_s`` (default: to the clip's end; longer requests are
     cut to the clip with a warning). placement : see ``body_motion``. truth_masks : store
     the person's silhouettes (bit-packed) in truth.npz. progress : called with the number
-    of frames done after each frame.
+    of frames done after each frame. motion_name : recorded in truth.npz (default: the file
+    name; for a clip object ``"clip"``), e.g. from ``mocap_rt.studio.variants.load_motion``.
     """
     t_start = time.perf_counter()
     rig = make_rig() if rig is None else rig
-    clip = read_bvh(motion)
+    clip = motion if isinstance(motion, BvhClip) else read_bvh(motion)
+    if motion_name is None:
+        motion_name = "clip" if isinstance(motion, BvhClip) else Path(motion).name
     duration = (clip.n_frames - 1) * clip.frame_time_s
     available = int(np.floor((duration - start_s) * fps + 1e-9)) + 1
     if available < 1:
@@ -110,7 +113,7 @@ def synthesize(motion: str | Path, out: str | Path, *, rig: Rig | None = None, f
                     masks[ci][f] = np.packbits(r.mask, axis=1)
             if progress is not None:
                 progress(f + 1)
-        writer.write_truth(_truth(rig, body, cue_vis, masks, clip_name=Path(motion).name, seed=seed))
+        writer.write_truth(_truth(rig, body, cue_vis, masks, clip_name=motion_name, seed=seed))
     total = time.perf_counter() - t_start
     return SynthStats(Path(out), n_frames, n_frames * C, render_s, encode_s, total)
 
