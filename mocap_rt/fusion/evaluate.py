@@ -153,3 +153,109 @@ def anatomical_angles(joints: np.ndarray) -> dict[str, np.ndarray]:
             cosb = np.sum(d * e, -1) / (dn * np.linalg.norm(e, axis=-1))
             out[f"{second}_flex_{s}"] = np.degrees(np.arccos(np.clip(cosb, -1, 1)))
     return {n: out[n] for n in ANGLE_NAMES}
+
+
+# ----------------------------------------------------------------------------- motion-suite metrics
+# Two labellings of a left/right pair must differ by more than this (metres, summed over the
+# pair) before a frame counts as mirrored: hands together (a clap) are not a mirror.
+MIRROR_MARGIN_M = 0.05
+ANGLE_GROUPS: dict[str, tuple[str, ...]] = {
+    "hips": ("hip_flex_l", "hip_flex_r", "hip_abd_l", "hip_abd_r"), "knees": ("knee_flex_l", "knee_flex_r"),
+    "shoulders": ("shoulder_flex_l", "shoulder_flex_r", "shoulder_abd_l", "shoulder_abd_r"),
+    "elbows": ("elbow_flex_l", "elbow_flex_r")}
+
+
+def procrustes_errors(est: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(F,) mean joint error (metres) per frame after the best similarity transform (rotation,
+    uniform scale, translation; no reflection) of ``est`` (F, J, 3) onto ``truth``; joints
+    NaN in either are left out, NaN for frames with fewer than 3 joints (PA-MPJPE)."""
+    est, truth = np.asarray(est, np.float64), np.asarray(truth, np.float64)
+    out = np.full(est.shape[0], np.nan)
+    for f in range(est.shape[0]):
+        ok = np.isfinite(est[f]).all(-1) & np.isfinite(truth[f]).all(-1)
+        if ok.sum() < 3:
+            continue
+        X, Y = est[f, ok], truth[f, ok]
+        mx, my = X.mean(0), Y.mean(0)
+        X0, Y0 = X - mx, Y - my
+        U, S, Vt = np.linalg.svd(X0.T @ Y0)
+        d = np.sign(np.linalg.det(U @ Vt)) or 1.0
+        D = np.diag([1.0, 1.0, d])
+        R = U @ D @ Vt                        # X0 @ R ~ Y0
+        nx = (X0 ** 2).sum()
+        s = float((S * np.diag(D)).sum() / nx) if nx > 0 else 1.0
+        out[f] = np.linalg.norm(s * X0 @ R - Y0, axis=-1).mean()
+    return out
+
+
+def mirrored_frames(est: np.ndarray, truth: np.ndarray, margin_m: float = MIRROR_MARGIN_M) -> np.ndarray:
+    """(F,) float: 1 where the hands or the feet of ``est`` are labelled with the wrong side,
+    0 where not, NaN where neither pair is complete in both (joints (F, 20, 3), metres; a
+    frame with only one complete pair is judged on that pair).
+
+    A pair (hand_l, hand_r) or (foot_l, foot_r) is mirrored when the crossed labelling is
+    closer to the truth than the straight one by more than ``margin_m``:
+    ``|e_l - t_r| + |e_r - t_l| + margin < |e_l - t_l| + |e_r - t_r|``."""
+    j = {n: i for i, n in enumerate(JOINT_NAMES)}
+    flags = []
+    for a, b in (("hand_l", "hand_r"), ("foot_l", "foot_r")):
+        el, er, tl, tr = est[:, j[a]], est[:, j[b]], truth[:, j[a]], truth[:, j[b]]
+        straight = np.linalg.norm(el - tl, axis=-1) + np.linalg.norm(er - tr, axis=-1)
+        crossed = np.linalg.norm(el - tr, axis=-1) + np.linalg.norm(er - tl, axis=-1)
+        flags.append(np.where(np.isfinite(straight + crossed), (crossed + margin_m < straight) * 1.0, np.nan))
+    return np.fmax(flags[0], flags[1])            # NaN only where both are NaN
+
+
+def heading_deg(joints: np.ndarray) -> np.ndarray:
+    """(F,) heading of the trunk (``trunk_axes`` forward projected on the floor), degrees from
+    +X towards +Y."""
+    fwd = trunk_axes(np.asarray(joints, np.float64))[0]
+    return np.degrees(np.arctan2(fwd[:, 1], fwd[:, 0]))
+
+
+def wrap_deg(a: np.ndarray) -> np.ndarray:
+    """Angles (degrees) wrapped into [-180, 180)."""
+    return (np.asarray(a) + 180.0) % 360.0 - 180.0
+
+
+def angle_rmse_deg(est: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """RMSE (degrees, wrapped differences, NaN frames left out) of the ``anatomical_angles``
+    of each group of ``ANGLE_GROUPS`` (hips, knees, shoulders, elbows)."""
+    ae, at = anatomical_angles(est), anatomical_angles(truth)
+    out = {}
+    for g, names in ANGLE_GROUPS.items():
+        d = np.concatenate([wrap_deg(ae[n] - at[n]) for n in names])
+        d = d[np.isfinite(d)]
+        out[g] = float(np.sqrt(np.mean(d ** 2))) if d.size else float("nan")
+    return out
+
+
+def suite_metrics(truth: dict, frames: np.ndarray, cues: np.ndarray, joints: np.ndarray,
+                  fusion_ms: np.ndarray | None = None) -> dict[str, float]:
+    """The motion-suite figures of one clip (docs/body.md "Motion suite"): MPJPE, PA-MPJPE,
+    elbow/knee mean error (mm), % frames mirrored, heading error median/p95 (deg), joint-angle
+    RMSE per group (deg), cue 3D error median/p95 overall and per cue (mm), fusion ms
+    median/p99. Inputs as for ``accuracy``; joints NaN where not estimated."""
+    acc = accuracy(truth, frames, cues, joints)
+    idx = align_truth(truth, frames)
+    names = [str(n) for n in truth.get("joint_names", JOINT_NAMES)]
+    tj = np.asarray(truth["joints"])[idx][:, [names.index(n) for n in JOINT_NAMES]]
+    per_joint = acc.per_joint_mm()
+    mir = mirrored_frames(joints, tj)
+    herr = np.abs(wrap_deg(heading_deg(joints) - heading_deg(tj)))
+    herr = herr[np.isfinite(herr)]
+    m = {"frames": int(len(frames)), "mpjpe_mm": acc.mpjpe_mm,
+         "pa_mpjpe_mm": float(np.nanmean(procrustes_errors(joints, tj)) * 1e3),
+         "elbow_mm": float(np.nanmean([per_joint["elbow_l"], per_joint["elbow_r"]])),
+         "knee_mm": float(np.nanmean([per_joint["knee_l"], per_joint["knee_r"]])),
+         "mirrored_pct": float(100 * np.nanmean(mir)) if np.isfinite(mir).any() else float("nan"),
+         "heading_med_deg": float(np.median(herr)) if herr.size else float("nan"),
+         "heading_p95_deg": float(np.percentile(herr, 95)) if herr.size else float("nan"),
+         "cue_med_mm": acc.cue_median_mm, "cue_p95_mm": acc.cue_p95_mm,
+         "joint_coverage": acc.joint_coverage}
+    m.update({f"rmse_{g}_deg": v for g, v in angle_rmse_deg(joints, tj).items()})
+    for n, (med, p95) in acc.per_cue_mm().items():
+        m[f"cue_{n}_med_mm"], m[f"cue_{n}_p95_mm"] = med, p95
+    if fusion_ms is not None and len(fusion_ms):
+        m["fusion_ms_med"], m["fusion_ms_p99"] = float(np.median(fusion_ms)), float(np.percentile(fusion_ms, 99))
+    return m

@@ -42,6 +42,7 @@ class ProcessOutput:
     bvh_rows: np.ndarray
     pan_rad: np.ndarray
     timings_ms: dict = field(default_factory=dict)
+    fusion_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))   # (F,) per frame
     accuracy: Accuracy | None = None
 
 
@@ -138,7 +139,7 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
         bvh_rows=np.array([r.bvh_frame for r in results]),
         pan_rad=np.array([r.pan_rad for r in results]),
     )
-    fusion_ms = np.array([r.timings_ms["total"] for r in results])
+    fusion_ms = out.fusion_ms = np.array([r.timings_ms["total"] for r in results])
     out.timings_ms = {"fusion_median": float(np.median(fusion_ms)) if len(fusion_ms) else float("nan")}
     if t_perc:
         out.timings_ms["perception_6cam_median"] = float(np.median(t_perc))
