@@ -1,4 +1,4 @@
-"""Recorder node: poses to BVH + NPZ, and (live sources) the raw multi-view stream.
+"""Recorder node: poses to BVH + NPZ + C3D + TRC, and (live sources) the raw multi-view stream.
 
 Outputs in ``--out DIR``:
 
@@ -10,11 +10,15 @@ Outputs in ``--out DIR``:
   (``mocap-rt run --bones``);
 * ``poses.npz`` — every pose so far (see ``PoseLog``), rewritten atomically every
   ``SNAPSHOT_PERIOD_S`` (write to a temporary file, then rename);
+* ``poses.c3d``, ``poses.trc`` — the joints as markers (``mocap_rt.io.exports``: C3D Z up,
+  TRC Y up, millimetres), rewritten atomically like the NPZ, every ``EXPORT_MIN_PERIOD_S`` or
+  ``EXPORT_COST_FACTOR`` times the last rewrite's duration if longer (long sessions), and at close;
 * ``stream/`` — with ``--raw``: the cameras' raw images via ``RecordingWriter`` (the
   recorded-stream format, ~1 s video segments), so a live session can be replayed.
 
 Crash safety: after SIGKILL every file opens and at most the last second is lost (BVH and
-the stream by their writers' design, NPZ by the atomic snapshot).
+the stream by their writers' design, NPZ by the atomic snapshot; C3D/TRC hold every pose up
+to their last rewrite, the NPZ has the rest).
 
     python -m nodes.recorder --rig RIG.toml --out DIR [--raw] [--fps 30]
 """
@@ -42,6 +46,8 @@ log = logging.getLogger(__name__)
 SNAPSHOT_PERIOD_S = 1.0        # NPZ snapshot period: the most a crash can lose
 RAW_GATHER_S = 1.0             # wait this long for every camera's image of a frame
 STREAM_DIR = "stream"
+EXPORT_MIN_PERIOD_S = 1.0      # C3D/TRC rewrite period (short sessions)
+EXPORT_COST_FACTOR = 20.0      # ... at least this times the last rewrite's duration (<= 5 % CPU)
 
 
 class PoseLog:
@@ -170,13 +176,14 @@ def output_paths(out_dir: Path) -> tuple[Path, Path, Path, Path]:
         sfx = "" if i == 0 else f"_{i:03d}"
         paths = (out_dir / f"poses{sfx}.npz", out_dir / f"poses{sfx}.bvh", out_dir / f"bones{sfx}.toml",
                  out_dir / f"{STREAM_DIR}{sfx}")
-        if not any(p.exists() for p in paths):
+        exports = (out_dir / f"poses{sfx}.c3d", out_dir / f"poses{sfx}.trc")
+        if not any(p.exists() for p in paths + exports):
             return paths
     raise FileExistsError(f"{out_dir}: too many recordings already")
 
 
 class PoseFiles:
-    """The pose outputs of one recording: NPZ log, streamed BVH, bones TOML."""
+    """The pose outputs of one recording: NPZ log, streamed BVH, bones TOML, C3D and TRC."""
 
     def __init__(self, npz_path: Path, bvh_path: Path, bones_path: Path, camera_names: list[str],
                  fps: float) -> None:
@@ -185,6 +192,9 @@ class PoseFiles:
         self.bvh = None                  # opened on the first pose, with its skeleton
         self._bones: np.ndarray | None = None
         self.last_frame = -1
+        self.export_stem = Path(npz_path).with_suffix("")       # .../poses_001 -> .c3d, .trc
+        self._exported = 0                                      # poses in the exports
+        self._export_due = 0.0
 
     def add(self, pose: Pose) -> None:
         """Record one pose; ValueError (nothing written) for an old frame or bad values."""
@@ -206,8 +216,29 @@ class PoseFiles:
         self.log.add(pose)
         self.last_frame = pose.frame
 
+    def write_exports(self) -> float:
+        """Rewrite ``poses.c3d`` / ``poses.trc`` with every pose so far (atomically);
+        returns the seconds it took (0 when nothing new)."""
+        from mocap_rt.io.exports import write_pose_exports
+
+        if len(self.log) == self._exported:
+            return 0.0
+        t0 = time.perf_counter()
+        a = self.log.arrays()
+        write_pose_exports(self.export_stem, a["frames"], a["joints"], self.fps)
+        self._exported = len(a["frames"])
+        return time.perf_counter() - t0
+
+    def snapshot(self, now: float) -> None:
+        """The NPZ snapshot, and the C3D/TRC rewrite when it is due (monotonic ``now``, s)."""
+        self.log.snapshot()
+        if now >= self._export_due:
+            took = self.write_exports()
+            self._export_due = now + max(EXPORT_MIN_PERIOD_S, EXPORT_COST_FACTOR * took)
+
     def close(self) -> None:
         self.log.snapshot()
+        self.write_exports()
         if self.bvh is not None:
             self.bvh.close()
 
@@ -261,7 +292,7 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
                 stream.flush_ready(now)
                 rt.extra["raw_frames"] = stream.frames_written
             if now - last_snap >= SNAPSHOT_PERIOD_S:
-                poses.log.snapshot()
+                poses.snapshot(now)
                 last_snap = now
             rt.extra["poses"] = len(poses.log)
             rt.extra.update(window.counters())

@@ -7,7 +7,7 @@ import argparse
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "process", help="run perception, fusion and IK over a recording; write poses.bvh and poses.npz",
+        "process", help="run perception, fusion and IK over a recording; write poses.bvh, .npz, .c3d and .trc",
         description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("rec_dir", metavar="REC_DIR", help="recording directory (docs/recording-format.md)")
     p.add_argument("--out", required=True, metavar="OUT_DIR", help="output directory")
@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = FusionConfig(views=args.views, ik=args.ik, bone_lengths=bones)
     out = process_recording(rec, args.out, cfg, max_frames=args.max_frames, truth_2d=args.truth_2d,
                             noise_px=args.noise_px, progress=not args.no_progress)
-    print(f"wrote {Path(args.out) / 'poses.bvh'}, poses.npz and bones.toml ({len(out.frames)} frames)")
+    print(f"wrote {Path(args.out) / 'poses.bvh'}, poses.npz, poses.c3d, poses.trc and bones.toml ({len(out.frames)} frames)")
     print("timings (ms): " + ", ".join(f"{k} {v:.2f}" for k, v in out.timings_ms.items()))
     if out.accuracy is not None:
         print(out.accuracy.summary())

@@ -4,7 +4,8 @@ Per frame: perception of every camera (``CameraPerceiver``, fed with the tracker
 prediction), then ``BodyTracker.step``. At the end, frames solved before the bone
 lengths were estimated are re-solved with the final lengths, so the whole clip uses one
 skeleton. Writes ``OUT_DIR/poses.bvh``, ``OUT_DIR/bones.toml`` (the bone lengths used,
-given or estimated; reusable with ``--bones``) and ``OUT_DIR/poses.npz``:
+given or estimated; reusable with ``--bones``), ``OUT_DIR/poses.c3d`` and ``OUT_DIR/poses.trc``
+(the joints as markers, ``mocap_rt.io.exports``) and ``OUT_DIR/poses.npz``:
 
 * ``joints`` (F, J, 3) float64 metres, world; NaN before the first full pose;
 * ``joint_names`` (J,) str (the truth's names), ``frames`` (F,) int;
@@ -83,7 +84,7 @@ def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool 
 def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionConfig | None = None,
                       perception_config=None, max_frames: int | None = None, truth_2d: bool = False,
                       noise_px: float = 1.0, seed: int = 0, progress: bool = True) -> ProcessOutput:
-    """Perception + fusion + IK over a recording; writes poses.bvh and poses.npz.
+    """Perception + fusion + IK over a recording; writes poses.bvh, .npz, .c3d, .trc, bones.toml.
 
     config : fusion settings (default: ``FusionConfig(fps=recording fps)``).
     truth_2d : skip perception and feed the truth's 2D cues (+ ``noise_px`` Gaussian
@@ -91,6 +92,7 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
     """
     from mocap_rt.body.skeleton import write_bone_lengths
     from mocap_rt.io.bvh import write_bvh
+    from mocap_rt.io.exports import write_pose_exports
     from mocap_rt.io.recording import Recording
 
     rec = Recording(rec_dir)
@@ -151,6 +153,7 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
                         cue_valid=out.cue_valid, joint_valid=out.joint_valid, pan_rad=out.pan_rad,
                         bone_lengths=np.array(list(asdict(lengths).values())),
                         bone_length_names=np.array(list(asdict(lengths).keys())))
+    write_pose_exports(out_dir / "poses", out.frames, out.joints, config.fps)
     if truth is not None:
         out.accuracy = accuracy(truth, out.frames, out.cues, np.where(out.joint_valid[..., None], out.joints, np.nan))
     rec.close()

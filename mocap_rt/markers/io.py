@@ -227,10 +227,13 @@ def write_trc(path: str | Path, data: MarkerData, units: str = "mm") -> None:
         "",
     ]
     values = data.positions / scale
+    values = np.where(np.isfinite(values), values, np.nan).reshape(n_frames, -1)
     times = data.times_s
-    for f in range(n_frames):
-        cells = ["" if not np.isfinite(v) else f"{v:.6f}" for v in values[f].ravel()]
-        out.append(f"{data.first_frame + f}\t{times[f]:.6f}\t" + "\t".join(cells))
+    # one %-format per row (fast for long recordings); "nan" (the only letters in the rows)
+    # becomes the empty field of a missing sample
+    row = "%d\t%.6f\t" + "\t".join(["%.6f"] * (3 * n_markers))
+    rows = "\n".join(row % (data.first_frame + f, times[f], *values[f]) for f in range(n_frames))
+    out.append(rows.replace("nan", ""))
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text("\n".join(out) + "\n", encoding="utf-8")
     tmp.replace(path)

@@ -30,6 +30,14 @@ def test_process_truth_2d_writes_bvh_and_npz_and_is_accurate(recording, tmp_path
     text = (tmp_path / "poses.bvh").read_text()
     mocap = bvh.Bvh(text)
     assert mocap.nframes == n and mocap.get_joints_names() == list(JOINT_NAMES)
+    # the joints as markers: C3D (Z up) and TRC (Y up), millimetres in the files, same poses
+    from mocap_rt.markers.io import read_c3d, read_trc
+    c3d, trc = read_c3d(tmp_path / "poses.c3d"), read_trc(tmp_path / "poses.trc")
+    assert c3d.labels == trc.labels == tuple(JOINT_NAMES) and c3d.rate_hz == trc.rate_hz == 30.0
+    with np.load(tmp_path / "poses.npz") as z:
+        rows = z["frames"] - z["frames"][0]
+        np.testing.assert_allclose(c3d.positions[rows], z["joints"], atol=1e-6)
+        np.testing.assert_allclose(trc.positions[rows][..., 1], z["joints"][..., 2], atol=1e-8)
     acc = out.accuracy
     assert acc.cue_median_mm < 10 and acc.cue_p95_mm < 30
     assert acc.mpjpe_mm < 80  # bone lengths estimated from only 0.5 s of cues
