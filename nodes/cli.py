@@ -1,7 +1,7 @@
 """``mocap-rt run``: the real-time capture service, every node its own process.
 
 Also ``mocap-rt node ROLE ...`` to start a single node by hand or from systemd
-(``sync``, ``camera``, ``fusion``, ``recorder``, ``viewer``), with the node's own flags.
+(``sync``, ``camera``, ``fusion``, ``recorder``, ``viewer``, ``stream``), with the node's own flags.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 NODE_MODULES = {"sync": "nodes.sync", "camera": "nodes.camera_worker", "fusion": "nodes.fusion_node",
-                "recorder": "nodes.recorder", "viewer": "nodes.viewer"}
+                "recorder": "nodes.recorder", "viewer": "nodes.viewer", "stream": "nodes.streamer"}
 
 
 def _speed(text: str) -> float | None:
@@ -39,6 +39,11 @@ def register(subparsers) -> None:
     p.add_argument("--rerun", default=None, help="viewer: save:FILE.rrd | serve[:PORT] | spawn")
     p.add_argument("--record", type=Path, default=None, help="record poses (BVH, NPZ) and live streams here")
     p.add_argument("--stats", type=Path, default=None, help="write run statistics JSON here")
+    p.add_argument("--stream", default=None, metavar="vmc[:HOST[:PORT]]",
+                   help="send every pose as a VMC protocol bundle (OSC/UDP; default 127.0.0.1:39539) to "
+                        "VSeeFace, EVMC4U, Warudo ...; see docs/streaming.md")
+    p.add_argument("--allow-remote-stream", action="store_true",
+                   help="let --stream send to a host other than this one (plain UDP, unauthenticated)")
     p.add_argument("--deadline-frac", type=float, default=0.8,
                    help="fusion waits for late cameras at most this fraction of a frame period")
     p.add_argument("--bones", type=Path, default=None, metavar="TOML",
@@ -81,13 +86,18 @@ def run(args: argparse.Namespace) -> int:
         from mocap_rt.body.skeleton import read_bone_lengths
 
         read_bone_lengths(args.bones)       # a bad file is reported here, not by a dying node
+    if args.stream is not None:
+        from mocap_rt.io.vmc import parse_vmc_target
+
+        parse_vmc_target(args.stream, args.allow_remote_stream)   # a bad target is reported here
     if args.duration is not None and args.duration <= 0:
         raise ValueError("--duration must be > 0")
     cfg = RunConfig(rig_path=Path(rig), source=args.source, speed=args.speed, duration_s=args.duration,
                     rerun=args.rerun, record=args.record, stats=args.stats, deadline_frac=args.deadline_frac,
                     bones=args.bones,                     preview_every=args.preview_every, restart=not args.no_restart, log_dir=args.log_dir,
                     status_line=not args.quiet, nice=args.nice,
-                    rt_priority=args.rt_priority)
+                    rt_priority=args.rt_priority, stream=args.stream,
+                    allow_remote_stream=args.allow_remote_stream)
     launcher = Launcher(cfg)
     print(f"mocap-rt run: rig {launcher.rig_name}, {len(launcher.rig)} cameras, trigger "
           f"{launcher.trigger_fps:g} fps ({'free-run' if cfg.speed is None else f'x{cfg.speed:g}'}), "

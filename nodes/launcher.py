@@ -74,6 +74,8 @@ class RunConfig:
                                        # once warmed up; 0 = off; None = auto (DEFAULT_RT_PRIORITY
                                        # at a triggered rate, off when free-running)
     extra_node_args: dict = field(default_factory=dict)   # node role -> extra argv
+    stream: str | None = None          # pose stream, e.g. "vmc:127.0.0.1:39539" (nodes/streamer.py)
+    allow_remote_stream: bool = False  # let the stream leave this host
 
 
 PORT_RANGE = (20000, 32000)    # listen ports are drawn here, below the kernel's ephemeral range
@@ -259,6 +261,9 @@ class Launcher:
                                                   "--fps", str(self.base_fps)] + (["--raw"] if live else [])))
         if cfg.rerun:
             plan.append(("viewer", "viewer", ["-m", "nodes.viewer", "--rerun", cfg.rerun]))
+        if cfg.stream:
+            plan.append(("streamer", "streamer", ["-m", "nodes.streamer", "--stream", cfg.stream]
+                         + (["--allow-remote-stream"] if cfg.allow_remote_stream else [])))
         plan.append(("fusion", "fusion", ["-m", "nodes.fusion_node", "--deadline-frac", str(cfg.deadline_frac),
                                           "--fps", str(self.base_fps)]
                      + (["--bones", str(cfg.bones)] if cfg.bones else [])))
@@ -524,7 +529,7 @@ class Launcher:
         self._sample_cpu()
         order = [n for n, p in self.nodes.items() if p.role in ("camera", "fusion")]
         self._terminate(order)
-        self._terminate([n for n, p in self.nodes.items() if p.role in ("recorder", "viewer")])
+        self._terminate([n for n, p in self.nodes.items() if p.role in ("recorder", "viewer", "streamer")])
         self._stop_spare()
         if self.session is not None:
             self.monitor.close()
@@ -566,4 +571,6 @@ class Launcher:
             "cpu_s": {name: v["cpu_s"] for name, v in nodes.items()},
             "cpu_s_running": {name: v["cpu_s_running"] for name, v in nodes.items()},
             "nodes": nodes, "log_dir": str(self.log_dir),
+            **({"stream": {k[2:]: v for k, v in table.get("streamer", {}).items() if k.startswith("x_")}}
+               if "streamer" in self.nodes else {}),
         }

@@ -24,10 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap_rt.body.bvh_export import WORLD_TO_BVH as WORLD_TO_Y_UP   # world Z up -> Y up (X, Z, -Y)
 from mocap_rt.markers.io import MarkerData, write_trc
 from mocap_rt.names import JOINT_NAMES
-
-WORLD_TO_Y_UP = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])   # world Z up -> OpenSim Y up
 TRC_FIRST_FRAME = 1          # OpenSim numbers TRC frames from 1
 
 

@@ -1,0 +1,156 @@
+"""Streamer node: every pose as a VMC protocol bundle (OSC over UDP) for VSeeFace, EVMC4U, Warudo ...
+
+Subscribes to ``pose``; per pose it turns the BVH row into the Unity humanoid's bone-local
+rotations (``mocap_rt.body.humanoid``), encodes one OSC bundle (``mocap_rt.io.vmc``) and sends
+it to ``HOST:PORT`` (default 127.0.0.1:39539; another host needs ``--allow-remote-stream``).
+The work runs on Zenoh's receiving thread (a direct callback): nothing else waits on it, and
+no hand-over to another thread adds to the latency. A pose that cannot be converted (bad
+values) or sent is dropped, counted and logged; the node goes on.
+
+Status ``extra``: ``sent`` bundles, ``send_errors``, ``added_ms_p50`` / ``added_ms_p99``
+(pose received -> bundle sent, last 300 poses), ``pub_to_send_ms_p99`` (fusion published ->
+sent, same host).
+
+    python -m nodes.streamer --rig RIG.toml --stream vmc:127.0.0.1:39539 [--allow-remote-stream]
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import sys
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from mocap_rt.body.humanoid import HumanoidRig, humanoid_pose_from_bvh_row
+from mocap_rt.body.skeleton import BoneLengths, body_model
+from mocap_rt.io.vmc import parse_vmc_target, vmc_bundle
+from nodes.messages import Pose
+from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, setup_logging
+from nodes.transport import direct_callback
+
+log = logging.getLogger(__name__)
+
+WINDOW = 300          # poses over which the status percentiles are taken
+
+
+class VmcSender:
+    """Pose -> VMC bundle -> UDP datagram, with the skeleton of the poses' bone lengths."""
+
+    def __init__(self, target: tuple[str, int]) -> None:
+        self.target = target
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.t0 = time.monotonic()
+        self._bones: bytes | None = None
+        self._model = self._rig = None
+        self.sent = 0
+        self.send_errors = 0
+
+    def bundle(self, pose: Pose) -> bytes:
+        """The bundle of ``pose``; ValueError for a pose that cannot be converted."""
+        key = np.asarray(pose.bones, np.float64).tobytes()
+        if key != self._bones:                    # once per session: the subject's lengths
+            self._model = body_model(BoneLengths.from_array(pose.bones), "paper")
+            self._rig = HumanoidRig.of(self._model)
+            self._bones = key
+        row = np.asarray(pose.bvh_frame, np.float64)
+        if not np.isfinite(row).all():
+            raise ValueError(f"pose {pose.frame}: BVH row has non-finite values")
+        hp = humanoid_pose_from_bvh_row(self._rig, self._model, row)
+        return vmc_bundle(hp, time.monotonic() - self.t0)
+
+    def send(self, payload: bytes) -> bool:
+        try:
+            self.sock.sendto(payload, self.target)
+        except OSError as exc:                    # no route, buffer full ...: drop, count, go on
+            self.send_errors += 1
+            log.warning("streamer: bundle not sent to %s:%d: %s", *self.target, exc)
+            return False
+        self.sent += 1
+        return True
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
+    """Stream until ``rt.stop``."""
+    added: deque[float] = deque(maxlen=WINDOW)
+    pub_to_send: deque[float] = deque(maxlen=WINDOW)
+    lock = threading.Lock()            # the callback appends on Zenoh's thread
+
+    def on_pose(sample) -> None:
+        t_recv = time.perf_counter()
+        msg = rt.decoder.decode(sample.payload, Pose)
+        if msg is None:
+            return
+        try:
+            ok = sender.send(sender.bundle(msg))
+        except ValueError as exc:
+            rt.drops += 1
+            log.warning("streamer: %s", exc)
+            return
+        if not ok:
+            rt.drops += 1
+            return
+        ms = (time.perf_counter() - t_recv) * 1e3
+        with lock:
+            added.append(ms)
+            pub_to_send.append((time.monotonic_ns() - msg.t_pub_mono_ns) / 1e6)
+        rt.meter.add(ms)
+
+    sub = session.declare_subscriber(keys.pose, direct_callback(on_pose))
+    rt.publish_status("running", force=True)
+    try:
+        while not rt.stop.wait(0.2):
+            rt.extra.update(sent=sender.sent, send_errors=sender.send_errors)
+            with lock:
+                a, p = np.array(added), np.array(pub_to_send)
+            if a.size:
+                rt.extra.update(added_ms_p50=float(np.percentile(a, 50)), added_ms_p99=float(np.percentile(a, 99)),
+                                pub_to_send_ms_p99=float(np.percentile(p, 99)))
+            rt.publish_status()
+    finally:
+        sub.undeclare()
+        log.info("streamer: %d bundles sent to %s:%d, %d send errors, %d poses dropped",
+                 sender.sent, *sender.target, sender.send_errors, rt.drops)
+
+
+def build_parser():
+    """The node's command line."""
+    p = base_parser(__doc__.splitlines()[0], "streamer")
+    p.add_argument("--stream", default="vmc", help="vmc[:HOST[:PORT]] (default vmc:127.0.0.1:39539)")
+    p.add_argument("--allow-remote-stream", action="store_true",
+                   help="allow a HOST that is not this machine (the stream is plain UDP)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = build_parser()
+    args = p.parse_args(argv)
+    setup_logging(args.log_level)
+    target = parse_vmc_target(args.stream, args.allow_remote_stream)
+    load_rig(args)
+    sender = VmcSender(target)
+    # the first bundle's conversion (imports, scipy) is made now, not on the first pose
+    from mocap_rt.body.bvh_export import bvh_skeleton_of
+
+    n_ch = bvh_skeleton_of(BoneLengths()).n_channels
+    sender.bundle(Pose("warm-up", 0, 0, 0, np.zeros((6, 3)), np.zeros(6, bool), np.zeros((20, 3)),
+                       np.zeros(n_ch), (), (), BoneLengths().as_array()))
+    log.info("streamer: VMC bundles to %s:%d", *target)
+    try:
+        with node_session(args, "streamer") as rt:
+            rt.publish_status("ready", force=True)
+            run_streamer(rt.session, rt.keys, sender, rt)
+            rt.publish_status("stopping", force=True)
+    finally:
+        sender.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
