@@ -3,6 +3,7 @@
     python -m bench perception                 # all clips, 640x480 and 320x240, both tables
     python -m bench.bench_perception --speed   # speed table only
     python -m bench.bench_perception --real    # overlays on the real multi-view videos
+    python -m bench perception --hard          # hard-case suite (bench/perception_hard.py; --quick, --json F)
 
 Recordings are made with ``mocap_rt.studio`` into ``out/perception/clips`` if missing
 (6-camera ring, 30 fps, 2 s from 1 s into each clip, shadows on, flicker +-5 %, MJPG as
@@ -381,6 +382,10 @@ def real_footage() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if argv and "--hard" in argv:          # the hard-case suite lives in bench/perception_hard.py
+        from bench.perception_hard import main as hard_main
+
+        return hard_main([a for a in argv if a != "--hard"])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--speed", action="store_true", help="speed table only")
     ap.add_argument("--accuracy", action="store_true", help="accuracy table only")

@@ -13,13 +13,15 @@ Recordings are rendered once (6-camera ring, 30 fps, studio defaults) and cached
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-CACHE = REPO / "bench" / "out" / "suite"
+# MOCAP_RT_SUITE_CACHE: share the renders between worktrees (they are deterministic)
+CACHE = Path(os.environ.get("MOCAP_RT_SUITE_CACHE", REPO / "bench" / "out" / "suite"))
 SEGMENT_S = 4.0
 START_S = 1.0
 PROC_START_S = 0.8
@@ -121,15 +123,19 @@ def ensure_recording(clip: SuiteClip, size: tuple[int, int] = (640, 480), rig: s
     out = CACHE / f"{clip.name}_{rig}{size[0]}x{size[1]}_r{render_seed}"
     if (out / "truth.npz").exists():
         return out
-    if out.exists():
-        shutil.rmtree(out)                   # an interrupted earlier render
-    bvh, name = load_motion(clip.spec(), clip.variant)
-    duration = (bvh.n_frames - 1) * bvh.frame_time_s
-    start = min(clip.start_s, max(0.0, duration - clip.seconds))
-    seconds = min(clip.seconds, duration - start)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    synthesize(bvh, out, rig=make_rig(rig, size=size), fps=30.0, seconds=seconds, start_s=start,
-               seed=render_seed, motion_name=name)
+    CACHE.mkdir(parents=True, exist_ok=True)
+    with open(CACHE / f".{out.name}.lock", "w") as lock:       # one renderer per clip, across processes
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (out / "truth.npz").exists():
+            return out
+        if out.exists():
+            shutil.rmtree(out)                   # an interrupted earlier render
+        bvh, name = load_motion(clip.spec(), clip.variant)
+        duration = (bvh.n_frames - 1) * bvh.frame_time_s
+        start = min(clip.start_s, max(0.0, duration - clip.seconds))
+        seconds = min(clip.seconds, duration - start)
+        synthesize(bvh, out, rig=make_rig(rig, size=size), fps=30.0, seconds=seconds, start_s=start,
+                   seed=render_seed, motion_name=name)
     return out
 
 

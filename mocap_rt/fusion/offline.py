@@ -44,6 +44,7 @@ class ProcessOutput:
     pan_rad: np.ndarray
     timings_ms: dict = field(default_factory=dict)
     fusion_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))   # (F,) per frame
+    camera_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 6, 2)))  # (C, F, 6, 2) 2D cues, px
     accuracy: Accuracy | None = None
 
 
@@ -105,6 +106,7 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
     frames_idx = np.asarray(rec.frames)[:n]
     truth = rec.truth
     t_perc: list[float] = []
+    cam_xy: list[np.ndarray] = []                   # per frame (C, 6, 2): the cues fusion was given
     if truth_2d:
         if truth is None:
             raise ValueError(f"{rec_dir}: --truth-2d needs truth.npz (studio recordings only)")
@@ -131,7 +133,12 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
             t_perc.append((time.perf_counter() - t0) * 1e3)
             return frame, cues
 
-    results = run_tracker(tracker, frame_cues, n, progress)
+    def recorded(i, predictions):
+        frame, cues = frame_cues(i, predictions)
+        cam_xy.append(np.stack([cues[nm].xy for nm in names]))
+        return frame, cues
+
+    results = run_tracker(tracker, recorded, n, progress)
     out = ProcessOutput(
         frames=np.array([r.frame for r in results], dtype=np.int64),
         joints=np.array([r.joints for r in results]),
@@ -141,6 +148,8 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
         bvh_rows=np.array([r.bvh_frame for r in results]),
         pan_rad=np.array([r.pan_rad for r in results]),
     )
+    if cam_xy:
+        out.camera_xy = np.stack(cam_xy, axis=1)
     fusion_ms = out.fusion_ms = np.array([r.timings_ms["total"] for r in results])
     out.timings_ms = {"fusion_median": float(np.median(fusion_ms)) if len(fusion_ms) else float("nan")}
     if t_perc:

@@ -41,6 +41,13 @@ def test_process_truth_2d_writes_bvh_and_npz_and_is_accurate(recording, tmp_path
     acc = out.accuracy
     assert acc.cue_median_mm < 10 and acc.cue_p95_mm < 30
     assert acc.mpjpe_mm < 80  # bone lengths estimated from only 0.5 s of cues
+    # the 2D cues fusion was given (C, F, 6, 2) and the per-frame fusion times
+    from mocap_rt.io.recording import Recording
+    with Recording(recording) as rec:
+        t2d, vis = np.asarray(rec.truth["cues_2d"]), np.asarray(rec.truth["cue_visibility"]) >= 0.5
+    assert out.camera_xy.shape == (6, n, 6, 2) and out.fusion_ms.shape == (n,) and (out.fusion_ms > 0).all()
+    err = np.linalg.norm(out.camera_xy - t2d[:, :n], axis=-1)
+    assert np.isnan(err[~vis[:, :n]]).all() and np.median(err[vis[:, :n]]) < 1.0
 
 
 @pytest.mark.slow

@@ -1,0 +1,98 @@
+"""Accuracy of per-camera 2D cues against a studio truth: errors with left/right left to
+fusion, losses and re-acquisition (the hard-case perception suite, issue 12).
+
+Arrays: ``xy`` and ``truth_xy`` (C, F, 6, 2) pixels in ``CUE_NAMES`` order (NaN = not
+found / not defined), ``visible`` (C, F, 6) bool (the truth cue is visible and inside the
+image).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap_rt.names import CUE_NAMES
+
+# Pairs scored under whichever left/right labelling fits better (identity is fusion's job).
+PAIRS: tuple[tuple[int, int], ...] = ((CUE_NAMES.index("hand_l"), CUE_NAMES.index("hand_r")),
+                                      (CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")))
+# A visible cue farther than this from its truth (pixels at 640 px width, scaled) is lost.
+LOST_PX_640 = 20.0
+
+
+def pair_best_errors(xy: np.ndarray, truth_xy: np.ndarray) -> np.ndarray:
+    """(C, F, 6) pixel errors; for each hand and foot pair, per camera and frame, the
+    labelling (straight or crossed) with the smaller summed error is used when both cues
+    and both truths are defined; otherwise the straight one."""
+    xy, truth_xy = np.asarray(xy, np.float64), np.asarray(truth_xy, np.float64)
+    err = np.linalg.norm(xy - truth_xy, axis=-1)
+    for a, b in PAIRS:
+        crossed_a = np.linalg.norm(xy[..., a, :] - truth_xy[..., b, :], axis=-1)
+        crossed_b = np.linalg.norm(xy[..., b, :] - truth_xy[..., a, :], axis=-1)
+        swap = (crossed_a + crossed_b) < (err[..., a] + err[..., b])       # False where any is NaN
+        err[..., a], err[..., b] = np.where(swap, crossed_a, err[..., a]), np.where(swap, crossed_b, err[..., b])
+    return err
+
+
+def loss_episodes(lost: np.ndarray, ok: np.ndarray) -> list[tuple[int, bool]]:
+    """Loss episodes of one track over frames: lost, ok (F,) bool (neither = the cue is not
+    visible, which neither starts nor ends an episode). An episode starts at a lost frame
+    and lasts until the next ok frame; returns [(length in frames, re-acquired)]."""
+    out, start = [], None
+    for f in range(len(lost)):
+        if lost[f] and start is None:
+            start = f
+        elif ok[f] and start is not None:
+            out.append((f - start, True))
+            start = None
+    if start is not None:
+        out.append((len(lost) - start, False))
+    return out
+
+
+@dataclass(frozen=True)
+class CueTrackStats:
+    """One cue over all cameras. median_px, p95_px over visible and found frames (NaN if
+    none); lost_frames: visible frames not found or farther than the loss threshold;
+    visible_frames; longest_loss_s over all loss episodes; reacq_median_s, reacq_max_s over
+    the episodes that ended with the cue re-acquired (NaN if none); episodes."""
+
+    median_px: float
+    p95_px: float
+    lost_frames: int
+    visible_frames: int
+    longest_loss_s: float
+    reacq_median_s: float
+    reacq_max_s: float
+    episodes: int
+
+
+def cue_track_stats(xy: np.ndarray, truth_xy: np.ndarray, visible: np.ndarray, fps: float,
+                    lost_px: float) -> dict[str, CueTrackStats]:
+    """Per cue (``CUE_NAMES``) statistics of a recording's 2D cues (module doc for shapes)."""
+    err = pair_best_errors(xy, truth_xy)
+    found = np.isfinite(err)
+    visible = np.asarray(visible, bool)
+    lost = visible & (~found | (np.nan_to_num(err, nan=np.inf) > lost_px))
+    ok = visible & ~lost
+    out = {}
+    for k, name in enumerate(CUE_NAMES):
+        e = err[..., k][visible[..., k] & found[..., k]]
+        eps = [ep for c in range(err.shape[0]) for ep in loss_episodes(lost[c, :, k], ok[c, :, k])]
+        reacq = np.array([n for n, back in eps if back], np.float64) / fps
+        out[name] = CueTrackStats(
+            float(np.median(e)) if e.size else float("nan"), float(np.percentile(e, 95)) if e.size else float("nan"),
+            int(lost[..., k].sum()), int(visible[..., k].sum()),
+            max((n for n, _ in eps), default=0) / fps,
+            float(np.median(reacq)) if reacq.size else float("nan"),
+            float(reacq.max()) if reacq.size else float("nan"), len(eps))
+    return out
+
+
+def truth_visible(truth: dict, width: int, height: int, min_visible: float = 0.5) -> np.ndarray:
+    """(C, F, 6) bool: the truth cue is at least ``min_visible`` visible and inside the image."""
+    t2d = np.asarray(truth["cues_2d"], np.float64)
+    inside = np.isfinite(t2d).all(-1) & (t2d[..., 0] >= 0) & (t2d[..., 0] <= width - 1) & \
+        (t2d[..., 1] >= 0) & (t2d[..., 1] <= height - 1)
+    return inside & (np.asarray(truth["cue_visibility"]) >= min_visible)
