@@ -3,28 +3,42 @@ PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
+GST_STAMP := $(VENV)/.installed-gst
 DATA    ?= ../shared/data
 DEMO_DIR ?= out/demo
 
-.PHONY: setup system-deps demo test test-fast bench clean
+.PHONY: setup system-deps gst-bindings demo test test-fast bench clean
 
-setup: $(STAMP)
+setup: $(STAMP) gst-bindings
 
-# Debian packages the tests need: chromium (the web viewer test), iproute2 (network namespaces).
+# GStreamer (gst: camera sources, docs/sources.md) and what PyGObject builds against.
+GST_DEBS := gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-plugins-bad \
+	gstreamer1.0-libav gir1.2-gstreamer-1.0 gir1.2-gst-plugins-base-1.0 libgirepository1.0-dev libcairo2-dev pkg-config
+
+# Debian packages the tests need: chromium (the web viewer test), iproute2 (network namespaces),
+# GStreamer (the gst: source tests).
 system-deps:
-	@command -v chromium >/dev/null 2>&1 && command -v ip >/dev/null 2>&1 || { \
-	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium iproute2; }
+	@command -v chromium >/dev/null 2>&1 && command -v ip >/dev/null 2>&1 && dpkg -s $(GST_DEBS) >/dev/null 2>&1 || { \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium iproute2 $(GST_DEBS); }
+
+# PyGObject into the venv (the `gst` extra) once GStreamer's headers are there (make system-deps);
+# without them the rest of the project works and gst: sources say what to install.
+gst-bindings: $(STAMP)
+	@test -f $(GST_STAMP) || { if pkg-config --exists gobject-introspection-1.0 cairo 2>/dev/null; then \
+	  $(BIN)/python -m pip install --quiet -e '.[gst]' && touch $(GST_STAMP); \
+	  else echo "note: GStreamer development files missing (make system-deps): gst: sources unavailable"; fi; }
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	rm -f $(GST_STAMP)
 	touch $(STAMP)
 
 demo: setup
 	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
 
-test: setup system-deps
+test: system-deps setup
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q
 
 test-fast: setup

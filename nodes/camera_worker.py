@@ -241,7 +241,9 @@ def build_parser():
     """The node's command line (also checked against the deploy units in the tests)."""
     p = base_parser(__doc__.splitlines()[0], "")
     p.add_argument("--camera", required=True, help="camera name in the rig")
-    p.add_argument("--source", required=True, help="replay:REC_DIR | v4l2:/dev/videoN | fake:REC_DIR")
+    p.add_argument("--source", required=True, help="replay:REC_DIR | v4l2:/dev/videoN | fake:REC_DIR | gst:PIPELINE")
+    p.add_argument("--backgrounds-from", default=None, metavar="REC_DIR",
+                   help="gst: sources: use this recording's stored backgrounds (and source kind)")
     p.add_argument("--fps", type=float, default=30.0, help="live device frame rate")
     p.add_argument("--perception-config", default=None, help="perception TOML (default: built-in)")
     p.add_argument("--preview-every", type=int, default=0, help="publish a JPEG every N frames (0 = never)")
@@ -269,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
     from nodes.sources import open_source
 
     t = [time.perf_counter()]
-    source = open_source(args.source, camera, args.fps)
+    source = open_source(args.source, camera, args.fps, args.backgrounds_from)
     with node_session(args, "camera", args.node or f"worker-{camera.name}") as rt:
         t.append(time.perf_counter())
         session, keys, node = rt.session, rt.keys, rt.node

@@ -32,7 +32,11 @@ def register(subparsers) -> None:
     p.add_argument("--rig", type=Path, default=None,
                    help="rig TOML (default for replay/fake sources: REC_DIR/rig.toml)")
     p.add_argument("--source", required=True,
-                   help="replay:REC_DIR | v4l2:/dev/video0,/dev/video2,... (one per camera) | fake:REC_DIR")
+                   help="replay:REC_DIR | v4l2:/dev/video0,/dev/video2,... (one per camera) | fake:REC_DIR | "
+                        "gst:'PIPELINE' ({camera}/{index} filled in per camera; see docs/sources.md)")
+    p.add_argument("--backgrounds-from", type=Path, default=None, metavar="REC_DIR",
+                   help="gst: sources: the empty-scene backgrounds (and source kind) of this recording "
+                        "instead of capturing them at start")
     p.add_argument("--speed", type=_speed, default=1.0, help="replay speed factor or 'max' (default 1.0)")
     p.add_argument("--duration", type=float, default=None,
                    help="seconds to run (default: one pass of a replay; live: until Ctrl-C)")
@@ -76,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     rig = args.rig
     if rig is None:
         if kind not in ("replay", "fake"):
-            raise ValueError("--rig is required for v4l2 sources")
+            raise ValueError(f"--rig is required for {kind} sources")
         rig = Path(value) / "rig.toml"
     if not Path(rig).is_file():
         raise FileNotFoundError(f"rig file {rig} not found")
@@ -86,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
         from mocap_rt.body.skeleton import read_bone_lengths
 
         read_bone_lengths(args.bones)       # a bad file is reported here, not by a dying node
+    if args.backgrounds_from is not None and not (Path(args.backgrounds_from) / "recording.toml").is_file():
+        raise FileNotFoundError(f"--backgrounds-from {args.backgrounds_from}: not a recording directory")
     if args.stream is not None:
         from mocap_rt.io.vmc import parse_vmc_target
 
@@ -97,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
                     bones=args.bones,                     preview_every=args.preview_every, restart=not args.no_restart, log_dir=args.log_dir,
                     status_line=not args.quiet, nice=args.nice,
                     rt_priority=args.rt_priority, stream=args.stream,
-                    allow_remote_stream=args.allow_remote_stream)
+                    allow_remote_stream=args.allow_remote_stream, backgrounds_from=args.backgrounds_from)
     launcher = Launcher(cfg)
     print(f"mocap-rt run: rig {launcher.rig_name}, {len(launcher.rig)} cameras, trigger "
           f"{launcher.trigger_fps:g} fps ({'free-run' if cfg.speed is None else f'x{cfg.speed:g}'}), "

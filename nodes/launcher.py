@@ -76,6 +76,7 @@ class RunConfig:
     extra_node_args: dict = field(default_factory=dict)   # node role -> extra argv
     stream: str | None = None          # pose stream, e.g. "vmc:127.0.0.1:39539" (nodes/streamer.py)
     allow_remote_stream: bool = False  # let the stream leave this host
+    backgrounds_from: Path | None = None   # gst: sources: a recording's stored backgrounds
 
 
 PORT_RANGE = (20000, 32000)    # listen ports are drawn here, below the kernel's ephemeral range
@@ -248,6 +249,8 @@ class Launcher:
                 raise ValueError(f"--source v4l2: {len(devs)} device(s) for {len(names)} rig cameras "
                                  f"(give one per camera, in rig order, comma-separated)")
             return {n: f"v4l2:{d}" for n, d in zip(names, devs)}
+        if kind == "gst":          # one template for the rig: {camera} / {index} per camera
+            return {n: "gst:" + value.replace("{camera}", n).replace("{index}", str(i)) for i, n in enumerate(names)}
         return {n: f"{kind}:{value}" for n in names}
 
     def _plan(self) -> None:
@@ -272,6 +275,8 @@ class Launcher:
                     "--preview-every", str(preview)]
             if live and cfg.record:
                 argv.append("--publish-frames")
+            if cfg.backgrounds_from:
+                argv += ["--backgrounds-from", str(cfg.backgrounds_from)]
             plan.append((f"worker-{cam}", "camera", argv))
         # sync connects to every other node and to the monitor: wait for all those links
         sync_argv = ["-m", "nodes.sync", "--fps", str(self.trigger_fps), "--expect-peers", str(len(plan) + 1)]

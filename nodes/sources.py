@@ -8,6 +8,8 @@ Source specs (``--source``):
   grabber thread keeps only the newest frame and its timestamp.
 * ``fake:REC_DIR`` — a *simulated live camera*: the recording's images produced in real
   time at its fps by a device object, read through the very same ``Grabber`` as V4L2.
+* ``gst:PIPELINE`` — a GStreamer pipeline (IEEE1394, GenICam, RTSP, V4L2, files), see
+  ``nodes/gst_source.py``; ``{camera}`` in it is the camera's name.
 
 A source has ``camera`` (name), ``live`` (bool), ``grab(frame_id) -> Grab``,
 ``prefetch(frame_id)`` (replay: decode the next image between triggers; live: nothing),
@@ -49,8 +51,9 @@ class Grab:
 def parse_source(spec: str) -> tuple[str, str]:
     """``"replay:DIR"`` -> ``("replay", "DIR")``; raise ValueError for unknown kinds."""
     kind, sep, value = str(spec).partition(":")
-    if not sep or kind not in ("replay", "v4l2", "fake") or not value:
-        raise ValueError(f"--source {spec!r}: expected replay:REC_DIR, v4l2:/dev/videoN or fake:REC_DIR")
+    if not sep or kind not in ("replay", "v4l2", "fake", "gst") or not value:
+        raise ValueError(f"--source {spec!r}: expected replay:REC_DIR, v4l2:/dev/videoN, fake:REC_DIR "
+                         f"or gst:PIPELINE")
     return kind, value
 
 
@@ -85,6 +88,8 @@ class Grabber:
         while not self._stop.is_set():
             ok, image = self._device.read()
             t_mono, t_wall = time.monotonic_ns(), time.time_ns()
+            if ok and hasattr(self._device, "capture_stamps"):   # a device that knows (GStreamer PTS)
+                t_mono, t_wall = self._device.capture_stamps()
             if not ok or image is None:
                 self.failures += 1
                 if self._stop.wait(0.01):
@@ -252,9 +257,17 @@ class V4L2Device:
         self._cap.release()
 
 
-def open_source(spec: str, camera, fps: float = 30.0):
-    """Build the source for ``--source spec`` and a rig ``Camera``."""
+def open_source(spec: str, camera, fps: float = 30.0, backgrounds_from: str | None = None):
+    """Build the source for ``--source spec`` and a rig ``Camera`` (``backgrounds_from``: a
+    recording whose stored backgrounds a ``gst:`` source uses instead of capturing them)."""
     kind, value = parse_source(spec)
+    if kind == "gst":
+        from nodes.gst_source import open_gst_source
+
+        if "{index}" in value:
+            raise ValueError(f"--source {spec!r}: {{index}} is filled in by mocap-rt run; give the pipeline "
+                             f"of this camera")
+        return open_gst_source(value, camera, 0, backgrounds_from)
     if kind == "replay":
         return ReplaySource(Path(value), camera.name)
     if kind == "v4l2":
