@@ -1,9 +1,14 @@
 """``mocap-rt perceive REC_DIR --out CUES.npz``: run per-camera perception over a recording.
 
-Every camera, every frame; predictions come from each camera's own 2D tracks (the 3D
-predictor is not used here). The npz holds ``camera_names`` (C,), ``cue_names`` (6,),
-``frames`` (F,), ``cues_2d`` (C, F, 6, 2) pixels (NaN = not found), ``confidence``
-(C, F, 6), ``cov`` (C, F, 6, 2, 2), ``bbox`` (C, F, 4) and ``ms_per_frame`` (C, F).
+Every camera, every frame. By default the loop is closed as in ``mocap-rt process`` and
+the live service: fusion (``BodyTracker``) triangulates each frame's cues and its 3D
+prediction, projected into every camera with Z-buffer visibility (seed digest A.4),
+guides the next frame's perception. ``--open-loop`` runs each camera on its own 2D tracks
+(no fusion; also what a recording with fewer than two of the chosen cameras gets).
+
+The npz holds ``camera_names`` (C,), ``cue_names`` (6,), ``frames`` (F,), ``cues_2d``
+(C, F, 6, 2) pixels (NaN = not found), ``confidence`` (C, F, 6), ``cov`` (C, F, 6, 2, 2),
+``bbox`` (C, F, 4), ``ms_per_frame`` (C, F) perception milliseconds and ``closed_loop`` ().
 """
 
 from __future__ import annotations
@@ -22,13 +27,23 @@ def register(subparsers) -> None:
                    help="skin model: a TOML file, a shipped name (skin, studio_skin) or 'auto' "
                         "(studio_skin for studio recordings, else the config's / shipped skin)")
     p.add_argument("--cameras", nargs="*", help="only these cameras (default: all, rig order)")
+    p.add_argument("--open-loop", action="store_true",
+                   help="2D only: each camera follows its own 2D tracks (default: fusion's 3D predictions)")
     p.add_argument("--max-frames", type=int, default=0, help="stop after this many frames (0 = all)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
-def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, progress: bool = False) -> dict:
-    """Run ``CameraPerceiver`` over cameras of an open ``Recording``; returns the npz arrays."""
+def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, progress: bool = False,
+                       closed_loop: bool = True, fusion_config=None) -> dict:
+    """Run ``CameraPerceiver`` over cameras of an open ``Recording``; returns the npz arrays.
+
+    closed_loop : fusion's predictions guide perception (needs >= 2 cameras; with fewer
+        the run is open loop and ``closed_loop`` in the result says so).
+    fusion_config : ``FusionConfig`` of the closed loop (default: the recording's fps).
+    """
+    from dataclasses import replace
+
     import numpy as np
     from tqdm import tqdm
 
@@ -42,23 +57,39 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
     cov = np.full((C, n, 6, 2, 2), np.nan)
     bbox = np.zeros((C, n, 4), np.int64)
     ms = np.full((C, n), np.nan)
-    bar = tqdm(total=C * n, unit="img", disable=not progress)
-    for c, name in enumerate(cameras):
+    perceivers = {}
+    for name in cameras:
         bgs = rec.backgrounds(name)
         if len(bgs) == 0:
             raise ValueError(f"{rec.path}: camera {name} has no background frames (backgrounds/{name}/*.png)")
-        perceiver = CameraPerceiver(rec.rig[name], bgs, config)
-        for f, img in rec.iter_frames(name):
-            if f >= n:
-                break
-            out = perceiver.process(img, int(rec.frames[f]))
-            cues[c, f], conf[c, f], cov[c, f] = out.xy, out.confidence, out.cov
-            bbox[c, f] = out.bbox
-            ms[c, f] = out.timings_ms["total"]
-            bar.update(1)
-    bar.close()
-    return {"camera_names": np.array(cameras), "cue_names": np.array(CUE_NAMES), "frames": rec.frames[:n].copy(),
-            "cues_2d": cues, "confidence": conf, "cov": cov, "bbox": bbox, "ms_per_frame": ms}
+        perceivers[name] = CameraPerceiver(rec.rig[name], bgs, config)
+    iters = {name: rec.iter_frames(name) for name in cameras}
+    frames = np.asarray(rec.frames)[:n]
+
+    def frame_cues(i: int, predictions) -> tuple[int, dict]:
+        out = {}
+        for c, name in enumerate(cameras):
+            _, img = next(iters[name])
+            pred = None if predictions is None else predictions.get(name)
+            cc = perceivers[name].process(img, int(frames[i]), pred)
+            cues[c, i], conf[c, i], cov[c, i], bbox[c, i] = cc.xy, cc.confidence, cc.cov, cc.bbox
+            ms[c, i] = cc.timings_ms["total"]
+            out[name] = cc
+        return int(frames[i]), out
+
+    closed_loop = closed_loop and C >= 2
+    if closed_loop:
+        from mocap_rt.fusion.offline import run_tracker
+        from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+
+        fc = replace(fusion_config or FusionConfig(), fps=float(rec.fps))
+        run_tracker(BodyTracker(rec.rig, fc), frame_cues, n, progress)
+    else:
+        for i in tqdm(range(n), disable=not progress, unit="frame", desc="perceive"):
+            frame_cues(i, None)
+    return {"camera_names": np.array(cameras), "cue_names": np.array(CUE_NAMES), "frames": frames.copy(),
+            "cues_2d": cues, "confidence": conf, "cov": cov, "bbox": bbox, "ms_per_frame": ms,
+            "closed_loop": np.array(closed_loop)}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,12 +110,14 @@ def run(args: argparse.Namespace) -> int:
         unknown = [c for c in cameras if c not in rec.camera_names]
         if unknown:
             raise ValueError(f"{args.recording}: no camera {unknown} (has {rec.camera_names})")
-        result = perceive_recording(rec, cameras, config, args.max_frames, progress=not args.no_progress)
+        result = perceive_recording(rec, cameras, config, args.max_frames, progress=not args.no_progress,
+                                    closed_loop=not args.open_loop)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(args.out, **result)
     found = np.isfinite(result["cues_2d"][..., 0]).mean(axis=(0, 1))
     ms = result["ms_per_frame"]
-    print(f"{args.out}: {len(cameras)} cameras x {result['frames'].size} frames; "
+    loop = "closed loop (fusion's 3D predictions)" if result["closed_loop"] else "open loop (2D tracks)"
+    print(f"{args.out}: {len(cameras)} cameras x {result['frames'].size} frames, {loop}; "
           f"median {np.nanmedian(ms):.2f} ms/frame; found " +
           ", ".join(f"{n} {v:.0%}" for n, v in zip(result["cue_names"], found)))
     return 0

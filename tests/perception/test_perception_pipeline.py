@@ -140,12 +140,14 @@ def test_perceive_cli_on_a_small_recording(tmp_path):
             scs = [make_scene(size=(320, 240), scale=0.5, cx=120.0 + 4 * f + 20 * c) for c in range(2)]
             frames.append(scs)
             w.write_frame(f, [s.image for s in scs], [f / 30.0] * 2)
+    # the two flat scenes are no 3D person: the 2D-only loop
     assert main(["perceive", str(tmp_path / "rec"), "--out", str(tmp_path / "cues.npz"), "--no-progress",
-                 "--skin-model", "skin"]) == 0
+                 "--skin-model", "skin", "--open-loop"]) == 0
     z = np.load(tmp_path / "cues.npz")
     assert list(z["camera_names"]) == ["cam_1", "cam_2"] and list(z["cue_names"]) == list(CUE_NAMES)
     assert z["cues_2d"].shape == (2, 6, 6, 2) and z["confidence"].shape == (2, 6, 6)
     assert z["ms_per_frame"].shape == (2, 6) and np.isfinite(z["ms_per_frame"]).all()
+    assert not z["closed_loop"]
     np.testing.assert_array_equal(z["frames"], np.arange(6))
     for c in range(2):
         for f in range(6):
