@@ -274,6 +274,86 @@ def _likelihood_kernel(img, mask, params, binary, out):  # pragma: no cover - nu
                 out[y, x] = np.exp(-e * inv2s)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _model_chroma(s, p):  # pragma: no cover - numba
+    """Model chromaticity (R/S, G/S) float64 at the pixel sum ``s`` = r+g+b (float32), eq. 1-2,
+    and whether its grey level s/3 lies in the model's range; p = ``kernel_params``."""
+    i = s * np.float32(1.0 / 3.0)
+    if i < p[7] or i > p[8]:
+        return 0.0, 0.0, False
+    mr = (p[0] * i + p[1]) * i
+    mg = (p[2] * i + p[3]) * i
+    mb = (p[4] * i + p[5]) * i
+    ms = mr + mg + mb
+    return mr / ms, mg / ms, True
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def colour_bits(b, g, r, pa, pb):  # pragma: no cover - numba
+    """Eq. 1-2 test of one BGR pixel (uint8 b, g, r) by two models (``kernel_params``):
+    bit 0 set when model ``pa`` accepts it, bit 1 when ``pb`` does."""
+    b = np.float32(b)
+    g = np.float32(g)
+    r = np.float32(r)
+    s = r + g + b
+    if s <= 0.0:
+        return 0
+    rn = r / s
+    gn = g / s
+    bits = 0
+    for m in range(2):
+        mr, mg, ok = _model_chroma(s, pa if m == 0 else pb)
+        if ok:
+            dr = rn - mr
+            dg = gn - mg
+            if dr * dr + dg * dg <= (pa[9] if m == 0 else pb[9]):
+                bits |= 1 << m
+    return bits
+
+
+@numba.njit(cache=True, nogil=True)
+def chroma_table(pa, pb):  # pragma: no cover - numba
+    """(766, 5) float64 lookup of two models by pixel sum s = r+g+b (0..765): model a's
+    (R/S, G/S), model b's, and bits (1: a's grey range holds s/3, 2: b's). Rows equal
+    ``_model_chroma`` exactly, so a test through the table equals ``colour_bits``."""
+    t = np.zeros((766, 5))
+    for s in range(1, 766):
+        ra, ga, oka = _model_chroma(np.float32(s), pa)
+        rb, gb, okb = _model_chroma(np.float32(s), pb)
+        t[s, 0] = ra
+        t[s, 1] = ga
+        t[s, 2] = rb
+        t[s, 3] = gb
+        t[s, 4] = oka + 2 * okb
+    return t
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def colour_bits_table(b, g, r, table, emax_a, emax_b):  # pragma: no cover - numba
+    """``colour_bits`` through ``chroma_table`` (no polynomial, no model division per pixel)."""
+    si = np.int64(b) + np.int64(g) + np.int64(r)
+    if si == 0:
+        return 0
+    valid = np.int64(table[si, 4])
+    if valid == 0:
+        return 0
+    s = np.float32(si)
+    rn = np.float32(r) / s
+    gn = np.float32(g) / s
+    bits = 0
+    if valid & 1:
+        dr = rn - table[si, 0]
+        dg = gn - table[si, 1]
+        if dr * dr + dg * dg <= emax_a:
+            bits = 1
+    if valid & 2:
+        dr = rn - table[si, 2]
+        dg = gn - table[si, 3]
+        if dr * dr + dg * dg <= emax_b:
+            bits |= 2
+    return bits
+
+
 @numba.njit(cache=True, nogil=True)
 def _two_maps_kernel(img, mask, pa, pb, out_a, out_b):  # pragma: no cover - numba
     """Binary maps of two models in one pass (the pipeline's skin + shoe maps)."""
@@ -284,30 +364,11 @@ def _two_maps_kernel(img, mask, pa, pb, out_a, out_b):  # pragma: no cover - num
             out_b[y, x] = 0.0
             if mask[y, x] == 0:
                 continue
-            b = np.float32(img[y, x, 0])
-            g = np.float32(img[y, x, 1])
-            r = np.float32(img[y, x, 2])
-            s = r + g + b
-            if s <= 0.0:
-                continue
-            i = s * np.float32(1.0 / 3.0)
-            rn = r / s
-            gn = g / s
-            for m in range(2):
-                p = pa if m == 0 else pb
-                if i < p[7] or i > p[8]:
-                    continue
-                mr = (p[0] * i + p[1]) * i
-                mg = (p[2] * i + p[3]) * i
-                mb = (p[4] * i + p[5]) * i
-                ms = mr + mg + mb
-                dr = rn - mr / ms
-                dg = gn - mg / ms
-                if dr * dr + dg * dg <= p[9]:
-                    if m == 0:
-                        out_a[y, x] = 1.0
-                    else:
-                        out_b[y, x] = 1.0
+            bits = colour_bits(img[y, x, 0], img[y, x, 1], img[y, x, 2], pa, pb)
+            if bits & 1:
+                out_a[y, x] = 1.0
+            if bits & 2:
+                out_b[y, x] = 1.0
 
 
 def colour_maps_binary(image_bgr: np.ndarray, model_a: ColourModel, model_b: ColourModel,

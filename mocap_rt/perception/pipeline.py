@@ -29,10 +29,10 @@ import numpy as np
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
-from mocap_rt.perception.background import (BackgroundModel, ChangeThresholds, change_mask,
-                                            keep_strong_boundary, largest_component_filled)
+from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, change_mask, largest_component_filled
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
-from mocap_rt.perception.colour_model import ColourModel, colour_maps_binary, colour_model_from_spec
+from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_model_from_spec
+from mocap_rt.perception.silhouette import silhouette_colour
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
 
 log = logging.getLogger(__name__)
@@ -127,13 +127,15 @@ class CameraPerceiver:
         self.camera = camera
         self.config = config
         self.background = BackgroundModel.from_frames(np.asarray(backgrounds))
+        w, h = self.background.size
         self._close_kernel = (cv2.getStructuringElement(cv2.MORPH_RECT, (config.close_px, config.close_px))
                               if config.close_px > 0 else None)
-        w, h = self.background.size
         if tuple(int(v) for v in camera.size) != (w, h):
             raise ValueError(f"camera {camera.name}: size {tuple(camera.size)} but backgrounds are {w}x{h}")
         self.skin_model: ColourModel = colour_model_from_spec(config.skin_model_path, "skin")
         self.shoe_model: ColourModel = colour_model_from_spec(config.shoe_model_path, "shoe")
+        self._chroma = chroma_table(self.skin_model.kernel_params(), self.shoe_model.kernel_params())
+        self._emax = (self.skin_model.max_error, self.shoe_model.max_error)
         self.skin_tracker = BlobTracker(SKIN_CUES, config.skin_blobs)
         self.shoe_tracker = BlobTracker(SHOE_CUES, config.shoe_blobs)
         self._torso_step = config.torso_step_px or (2 if w > 400 else 1)
@@ -162,7 +164,7 @@ class CameraPerceiver:
         if img.shape != (h, w, 3) or img.dtype != np.uint8:
             raise ValueError(f"camera {self.camera.name}: expected ({h}, {w}, 3) uint8 BGR, "
                              f"got {img.shape} {img.dtype}")
-        sil, box = self._silhouette(img)
+        member, change, box = self._silhouette(img)
         t1 = time.perf_counter()
         xy = np.full((6, 2), np.nan)
         cov = np.full((6, 2, 2), np.nan)
@@ -176,8 +178,8 @@ class CameraPerceiver:
             return CameraCues(self.camera.name, frame, xy, cov, area, conf, (0, 0, 0, 0),
                               {"silhouette": (t1 - t0) * 1e3, "total": (t - t0) * 1e3})
         bx, by, bw, bh = box
-        sub = img[by:by + bh, bx:bx + bw]
-        skin, shoe = colour_maps_binary(sub, self.skin_model, self.shoe_model, sil)
+        sil, skin, shoe = silhouette_colour(member, change, img, box, self._chroma, *self._emax)
+        self._sil = sil
         t2 = time.perf_counter()
         top = self._top_point(sil)
         for tracker, idx, cmap in ((self.skin_tracker, _SKIN_IDX, skin), (self.shoe_tracker, _SHOE_IDX, shoe)):
@@ -219,8 +221,9 @@ class CameraPerceiver:
         x1, y1 = min(w, x + bw + m), min(h, y + bh + m)
         return x0, y0, x1 - x0, y1 - y0
 
-    def _silhouette(self, img: np.ndarray) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-        """Silhouette (bh, bw) uint8 {0,255} inside the person box (x, y, w, h) image px."""
+    def _silhouette(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int]]:
+        """Filled component (bh, bw) uint8 {0, 255} and change codes (``change_mask``) in the
+        person box (x, y, w, h) image px; the boundary clean-up is ``silhouette_colour``'s."""
         w, h = self.background.size
         roi = self._roi()
         while True:
@@ -237,15 +240,13 @@ class CameraPerceiver:
             roi = (0, 0, w, h)          # lost or leaving the ROI: search the whole image
         if cw == 0:
             self._box, self._sil, self._sil_box = None, np.zeros((0, 0), np.uint8), (0, 0, 0, 0)
-            return self._sil, (0, 0, 0, 0)
+            return self._sil, self._sil, (0, 0, 0, 0)
         box = (rx + cx, ry + cy, cw, ch)
-        sil = filled[cy:cy + ch, cx:cx + cw]
-        if self.config.change.edge_strength > 1.0:
-            # boundary pixels stay only if strongly changed: compressed video bleeds colour
-            # across the person's edge, which makes the plain change mask ~1 px too wide
-            sil = keep_strong_boundary(sil, mask[cy:cy + ch, cx:cx + cw])
-        self._box, self._sil, self._sil_box = box, sil, box
-        return sil, box
+        self._box, self._sil_box = box, box
+        change = mask[cy:cy + ch, cx:cx + cw]
+        if self.config.change.edge_strength <= 1.0:
+            change = np.full_like(change, 255)      # no boundary clean-up
+        return filled[cy:cy + ch, cx:cx + cw], change, box
 
     @staticmethod
     def _top_point(sil: np.ndarray) -> tuple[float, float]:
