@@ -14,6 +14,11 @@ import numpy as np
 from mocap_rt.names import CUE_NAMES
 
 N_CUES = len(CUE_NAMES)
+# Budget of a compact silhouette's packed bits, bytes: with the rest of the cues the
+# message stays under 4 KB per camera and frame.
+SILHOUETTE_MAX_BYTES = 3072
+# Finest cell size of a compact silhouette, pixels (the mask is rarely worth more).
+SILHOUETTE_MIN_STEP = 2
 
 
 def _arr(x, shape: tuple[int, ...], dtype, name: str) -> np.ndarray:
@@ -21,6 +26,90 @@ def _arr(x, shape: tuple[int, ...], dtype, name: str) -> np.ndarray:
     if a.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
     return a
+
+
+@dataclass(frozen=True, slots=True)
+class CompactSilhouette:
+    """The person's silhouette in one camera, downsampled inside its box (for fusion).
+
+    x0, y0 : image pixel of the first cell's top-left corner; step : cell size, pixels
+    (cell (i, j) covers pixels x0 + step*j .. x0 + step*(j+1) - 1, likewise rows);
+    mask : (h, w) bool, a cell is set when at least half of its pixels are the person's.
+    Everything outside the cells is background.
+    """
+
+    x0: int
+    y0: int
+    step: int
+    mask: np.ndarray
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.mask, dtype=bool)
+        if m.ndim != 2:
+            raise ValueError(f"silhouette mask must be 2-D, got shape {m.shape}")
+        if int(self.step) < 1:
+            raise ValueError(f"silhouette step must be >= 1, got {self.step}")
+        object.__setattr__(self, "mask", m)
+        for k in ("x0", "y0", "step"):
+            object.__setattr__(self, k, int(getattr(self, k)))
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the packed mask (what travels)."""
+        h, w = self.mask.shape
+        return h * ((w + 7) // 8)
+
+    @classmethod
+    def from_box_mask(cls, sil: np.ndarray, box: tuple[int, int, int, int],
+                      max_bytes: int = SILHOUETTE_MAX_BYTES) -> "CompactSilhouette":
+        """Downsample a silhouette given inside its box (bh, bw) (nonzero = person; box
+        (x, y, w, h) image pixels) with the smallest step >= SILHOUETTE_MIN_STEP whose packed
+        mask fits ``max_bytes``."""
+        import cv2
+
+        sil = np.asarray(sil)
+        x, y, bw, bh = (int(v) for v in box)
+        if sil.shape != (bh, bw):
+            raise ValueError(f"silhouette {sil.shape} does not match box {box}")
+        step = SILHOUETTE_MIN_STEP
+        while (-(-bh // step)) * ((-(-bw // step) + 7) // 8) > max_bytes:
+            step += 1
+        h, w = -(-bh // step), -(-bw // step)
+        if h == 0 or w == 0:
+            return cls(x, y, step, np.zeros((0, 0), bool))
+        pad = np.zeros((h * step, w * step), np.float32)
+        pad[:bh, :bw] = sil > 0
+        small = cv2.resize(pad, (w, h), interpolation=cv2.INTER_AREA)
+        return cls(x, y, step, small >= 0.5)
+
+    def full_mask(self, width: int, height: int) -> np.ndarray:
+        """(height, width) bool at image resolution (each cell repeated step x step)."""
+        out = np.zeros((height, width), bool)
+        big = np.repeat(np.repeat(self.mask, self.step, axis=0), self.step, axis=1)
+        x1, y1 = min(width, self.x0 + big.shape[1]), min(height, self.y0 + big.shape[0])
+        if x1 > self.x0 and y1 > self.y0:
+            out[self.y0:y1, self.x0:x1] = big[:y1 - self.y0, :x1 - self.x0]
+        return out
+
+    def packed(self) -> np.ndarray:
+        """(h, ceil(w / 8)) uint8, ``np.packbits`` along rows."""
+        return np.packbits(self.mask, axis=1)
+
+    @classmethod
+    def from_packed(cls, x0: int, y0: int, step: int, width: int, bits: np.ndarray) -> "CompactSilhouette":
+        """Inverse of ``packed``: ``width`` cells per row; ValueError when the sizes disagree."""
+        bits = np.asarray(bits, dtype=np.uint8)
+        if bits.ndim != 2 or width < 0 or bits.shape[1] != (width + 7) // 8:
+            raise ValueError(f"silhouette bits {bits.shape} do not hold rows of {width} cells")
+        return cls(x0, y0, step, np.unpackbits(bits, axis=1, count=width).astype(bool))
+
+    def to_dict(self) -> dict:
+        return {"x0": self.x0, "y0": self.y0, "step": self.step, "w": int(self.mask.shape[1]),
+                "bits": self.packed()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CompactSilhouette":
+        return cls.from_packed(int(d["x0"]), int(d["y0"]), int(d["step"]), int(d["w"]), d["bits"])
 
 
 @dataclass(frozen=True, slots=True)
@@ -33,6 +122,7 @@ class CameraCues:
     confidence : (6,) float64 in [0, 1]; 0 where not found.
     bbox : (x, y, w, h) int pixels of the person; (0, 0, 0, 0) when there is none.
     timings_ms : per-stage processing time of this frame, milliseconds.
+    silhouette : the person's compact silhouette (None: not sent).
     """
 
     camera: str
@@ -43,6 +133,7 @@ class CameraCues:
     confidence: np.ndarray
     bbox: tuple[int, int, int, int] = (0, 0, 0, 0)
     timings_ms: dict = field(default_factory=dict)
+    silhouette: CompactSilhouette | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "xy", _arr(self.xy, (N_CUES, 2), np.float64, "xy"))
@@ -64,12 +155,15 @@ class CameraCues:
     def to_dict(self) -> dict:
         return {"camera": self.camera, "frame": int(self.frame), "xy": self.xy, "cov": self.cov,
                 "area": self.area, "confidence": self.confidence, "bbox": list(self.bbox),
-                "timings_ms": {str(k): float(v) for k, v in self.timings_ms.items()}}
+                "timings_ms": {str(k): float(v) for k, v in self.timings_ms.items()},
+                "silhouette": None if self.silhouette is None else self.silhouette.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict) -> "CameraCues":
+        sil = d.get("silhouette")
         return cls(str(d["camera"]), int(d["frame"]), d["xy"], d["cov"], d["area"], d["confidence"],
-                   tuple(d["bbox"]), dict(d.get("timings_ms", {})))
+                   tuple(d["bbox"]), dict(d.get("timings_ms", {})),
+                   None if sil is None else CompactSilhouette.from_dict(sil))
 
 
 @dataclass(frozen=True, slots=True)

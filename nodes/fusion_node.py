@@ -166,7 +166,7 @@ def make_tracker(rig, fps: float = 30.0, bone_lengths=None):
 def warm_up(rig, fps: float = 30.0) -> float:
     """Run a throw-away tracker on synthetic cues so every numba kernel is compiled/loaded
     before the first real frame (the first step otherwise takes seconds). Returns seconds."""
-    from mocap_rt.cues import N_CUES, CameraCues
+    from mocap_rt.cues import N_CUES, CameraCues, CompactSilhouette
 
     t0 = time.perf_counter()
     tracker = make_tracker(rig, fps)
@@ -174,8 +174,13 @@ def warm_up(rig, fps: float = 30.0) -> float:
         cues = {}
         for cam in rig.cameras:
             uv, _ = cam.project(WARM_UP_CUES_M + [0.01 * f, 0.0, 0.0])
+            # the cues' bounding box as the silhouette: compiles the silhouette fit too
+            x0, y0 = np.floor(np.nanmin(uv, axis=0)).astype(int)
+            x1, y1 = np.ceil(np.nanmax(uv, axis=0)).astype(int)
+            sil = CompactSilhouette.from_box_mask(np.ones((y1 - y0 + 1, x1 - x0 + 1), np.uint8),
+                                                  (x0, y0, x1 - x0 + 1, y1 - y0 + 1))
             cues[cam.name] = CameraCues(cam.name, f, uv, np.tile(np.eye(2) * WARM_UP_COV_PX2, (N_CUES, 1, 1)),
-                                        np.full(N_CUES, 50.0), np.ones(N_CUES))
+                                        np.full(N_CUES, 50.0), np.ones(N_CUES), silhouette=sil)
         tracker.step(f, cues)
         tracker.predict(f + 1)
     return time.perf_counter() - t0

@@ -39,12 +39,12 @@ import msgpack
 import numpy as np
 
 from mocap_rt.body.skeleton import N_BONE_VALUES
-from mocap_rt.cues import N_CUES, CameraCues, CuePrediction
+from mocap_rt.cues import N_CUES, SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette, CuePrediction
 from mocap_rt.names import JOINT_NAMES
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 2          # 2: Pose carries the bone lengths of its skeleton
+SCHEMA_VERSION = 3          # 2: Pose carries the bone lengths of its skeleton; 3: Cues may carry a silhouette
 KEY_ROOT = "mocap"
 # names that become key-expression chunks: no '/', '*', '$', '?', '#' or spaces
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
@@ -200,6 +200,7 @@ class _Message:
     __slots__ = ()
     TYPE: ClassVar[str] = ""
     MAX_BYTES: ClassVar[int] = 0
+    OPTIONAL_FIELDS: ClassVar[tuple[str, ...]] = ()   # body keys a message may leave out
 
     def body(self) -> dict:  # pragma: no cover - each class overrides
         raise NotImplementedError
@@ -271,12 +272,16 @@ class Trigger(_Message):
 class Cues(_Message):
     """Camera worker -> fusion: one camera's cues for one triggered frame.
 
+    The cues may carry the camera's compact silhouette (body key ``sil``: cell origin,
+    step, width and the packed bits, <= ``SILHOUETTE_MAX_BYTES``; schema 3).
+
     t_trigger_mono_ns : the trigger's stamp (copied); t_grab_mono_ns : when the image was
     taken (replay: when it was read); processing_ms : grab + perception time.
     """
 
     TYPE: ClassVar[str] = "cues"
     MAX_BYTES: ClassVar[int] = 8192
+    OPTIONAL_FIELDS: ClassVar[tuple[str, ...]] = ("sil",)
     rig: str
     cues: CameraCues
     t_trigger_mono_ns: int
@@ -298,7 +303,8 @@ class Cues(_Message):
                 "confidence": encode_array(c.confidence), "bbox": [int(v) for v in c.bbox],
                 "timings_ms": {str(k): float(v) for k, v in c.timings_ms.items()},
                 "t_trigger_mono_ns": self.t_trigger_mono_ns, "t_grab_mono_ns": self.t_grab_mono_ns,
-                "processing_ms": float(self.processing_ms)}
+                "processing_ms": float(self.processing_ms),
+                **({} if c.silhouette is None else {"sil": _silhouette_body(c.silhouette)})}
 
     @classmethod
     def from_body(cls, b: dict) -> "Cues":
@@ -310,9 +316,31 @@ class Cues(_Message):
                           decode_array(b.get("cov"), "cov", (N_CUES, 2, 2), "<f8"),
                           decode_array(b.get("area"), "area", (N_CUES,), "<f8"),
                           decode_array(b.get("confidence"), "confidence", (N_CUES,), "<f8"),
-                          tuple(bbox), _float_map(b, "timings_ms"))
+                          tuple(bbox), _float_map(b, "timings_ms"),
+                          _silhouette_from_body(b["sil"]) if "sil" in b else None)
         return cls(_str(b, "rig", True), cues, _int(b, "t_trigger_mono_ns", 0),
                    _int(b, "t_grab_mono_ns", 0), _float(b, "processing_ms"))
+
+
+# largest silhouette cell count per side a Cues message may carry
+MAX_SILHOUETTE_CELLS = 4096
+
+
+def _silhouette_body(sil: CompactSilhouette) -> dict:
+    return {"x0": sil.x0, "y0": sil.y0, "step": sil.step, "w": int(sil.mask.shape[1]),
+            "bits": encode_array(sil.packed())}
+
+
+def _silhouette_from_body(d) -> CompactSilhouette:
+    """The optional compact silhouette of a Cues body; sizes and shape checked."""
+    if not isinstance(d, dict):
+        raise MessageError("field 'sil' must be a map")
+    x0, y0 = _int(d, "x0", -(2**20), 2**20), _int(d, "y0", -(2**20), 2**20)
+    step, w = _int(d, "step", 1, 256), _int(d, "w", 0, MAX_SILHOUETTE_CELLS)
+    bits = decode_array(d.get("bits"), "sil.bits", (None, (w + 7) // 8), "|u1")
+    if bits.shape[0] > MAX_SILHOUETTE_CELLS or bits.nbytes > 2 * SILHOUETTE_MAX_BYTES:
+        raise MessageError(f"field 'sil.bits' too large: {bits.shape}")
+    return CompactSilhouette.from_packed(x0, y0, step, w, bits)
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,8 +8,9 @@ angles) whose hands, feet and head lie on the cues when they are reachable.
 * Pan (not in the paper, which fixed it): the body's right axis is estimated from the
   left->right vectors of the feet and of the hands (feet weighted more), made
   perpendicular to the body axis; when the torso moves faster than
-  ``walk_speed_mps`` the walking direction (facing = velocity) is blended in and the
-  along-track components of the feet and hands vectors (steps, arm swing) are removed. The
+  ``walk_speed_mps`` the walking line is blended in, on the side the labels say (a
+  person may walk backwards: the velocity never decides which way the body faces), and
+  the along-track components of the feet and hands vectors (steps, arm swing) are removed. The
   caller passes the previous right axis so the estimate can be smoothed. ``refine_pan``
   then turns it (+-90 deg in 15 deg steps) to the heading whose analytic pose violates
   the range-of-motion limits least (a wrong pan makes the limbs twist out of range).
@@ -59,6 +60,8 @@ class AnalyticConfig:
     swivel_change_cost: float = 0.1  # per degree changed since the previous frame
     swivel_prior_cost: float = 0.2   # per degree away from the default pole
     snap_standing: bool = False     # standing: take the feet/hands line modulo 90 deg near the previous pan
+    walk_sign_from_labels: bool = True  # the walking direction gives the heading's line, the labels its sign
+                                        # (False: the body faces where it walks, the issue-5 behaviour)
 
 
 def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
@@ -79,13 +82,13 @@ def body_axes(cues: np.ndarray, prev_right: np.ndarray | None = None, velocity: 
     feet = cues[C_FOOT_R] - cues[C_FOOT_L]
     hands = cues[C_HAND_R] - cues[C_HAND_L]
     heading = None
+    w_walk = 0.0
     if velocity is not None and np.isfinite(velocity).all():
         vh = velocity - up * (velocity @ up)
         speed = float(np.linalg.norm(vh))
         if speed > config.walk_speed_mps:
             heading = vh / speed
-            w = config.walk_weight * min(1.0, (speed - config.walk_speed_mps) / config.walk_speed_mps)
-            v += w * _cross(heading, up)  # facing = velocity: right = forward x up
+            w_walk = config.walk_weight * min(1.0, (speed - config.walk_speed_mps) / config.walk_speed_mps)
     for vec, weight in ((feet, config.feet_weight), (hands, config.hands_weight)):
         if not np.isfinite(vec).all():
             continue
@@ -98,6 +101,14 @@ def body_axes(cues: np.ndarray, prev_right: np.ndarray | None = None, velocity: 
             cands = (vec, -vec, _cross(up, vec), -_cross(up, vec))
             vec = max(cands, key=lambda c: float(c @ prev))
         v += weight * vec / max(np.linalg.norm(vec), 0.05)
+    if heading is not None:
+        # the walking line gives the heading's axis; which way along it the body faces is the
+        # labels' (left/right) business unless ``walk_sign_from_labels`` is off (facing = velocity)
+        walk_right = _cross(heading, up)
+        side = float(v @ walk_right)
+        if config.walk_sign_from_labels and abs(side) < 1e-9:
+            side = float(prev @ walk_right)
+        v = v + w_walk * (-1.0 if (config.walk_sign_from_labels and side < 0) else 1.0) * walk_right
     v = v - up * (v @ up)
     right = _unit(v, prev)
     keep = config.pan_smoothing if heading is not None else config.still_pan_smoothing

@@ -51,16 +51,28 @@ def euler_xyz_from_matrix(R: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def _mul3(A, B, out):
+    """out = A @ B for 3x3 (written out: numba's ``@`` on 3x3 goes through BLAS, slower)."""
+    for a in range(3):
+        for b in range(3):
+            out[a, b] = A[a, 0] * B[0, b] + A[a, 1] * B[1, b] + A[a, 2] * B[2, b]
+
+
+@njit(cache=True, nogil=True)
 def _fk(parents, offsets, rest_local, root_pos, angles, pos, rot):
+    M = np.empty((3, 3))
     for j in range(parents.shape[0]):
         E = euler_xyz_matrix(angles[j, 0], angles[j, 1], angles[j, 2])
         p = parents[j]
         if p < 0:
-            rot[j] = rest_local[j] @ E
+            _mul3(rest_local[j], E, rot[j])
             pos[j] = root_pos
         else:
-            rot[j] = rot[p] @ (rest_local[j] @ E)
-            pos[j] = pos[p] + rot[p] @ offsets[j]
+            _mul3(rest_local[j], E, M)
+            _mul3(rot[p], M, rot[j])
+            for a in range(3):
+                pos[j, a] = pos[p, a] + rot[p, a, 0] * offsets[j, 0] + rot[p, a, 1] * offsets[j, 1] \
+                    + rot[p, a, 2] * offsets[j, 2]
 
 
 def forward_kinematics(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray,

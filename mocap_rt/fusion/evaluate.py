@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap_rt.cues import CameraCues
+from mocap_rt.cues import CameraCues, CompactSilhouette
 from mocap_rt.names import CUE_NAMES, JOINT_NAMES
 
 # A truth cue counts as seen by a camera when at least this fraction of it is visible.
@@ -88,11 +88,25 @@ def accuracy(truth: dict, frames: np.ndarray, cues: np.ndarray, joints: np.ndarr
     return Accuracy(np.linalg.norm(cues - tc, axis=-1), np.linalg.norm(joints - tj, axis=-1))
 
 
+def truth_silhouette(packed_rows: np.ndarray, width: int) -> CompactSilhouette:
+    """The compact silhouette (as perception sends it) of one truth mask, ``np.packbits``
+    rows (H, ceil(W / 8)) of a (H, ``width``) image."""
+    m = np.unpackbits(np.asarray(packed_rows), axis=-1, count=width).astype(bool)
+    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+    if rows.size == 0:
+        return CompactSilhouette(0, 0, 1, np.zeros((0, 0), bool))
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    return CompactSilhouette.from_box_mask(m[y0:y1, x0:x1], (x0, y0, x1 - x0, y1 - y0))
+
+
 def truth_camera_cues(truth: dict, camera_names: list[str], t_index: int, frame: int,
-                      noise_px: float, rng: np.random.Generator) -> dict[str, CameraCues]:
+                      noise_px: float, rng: np.random.Generator, widths: dict[str, int] | None = None
+                      ) -> dict[str, CameraCues]:
     """The truth's 2D cues of one frame as ``CameraCues`` (+ Gaussian pixel noise).
 
     A cue is present where its visible fraction is >= MIN_VISIBLE_FRAC; confidence 1.
+    With ``widths`` (camera -> image width px) and masks in the truth, each camera's cues
+    carry the truth silhouette (``truth_silhouette``).
     """
     tnames = [str(n) for n in truth["camera_names"]]
     out = {}
@@ -103,7 +117,11 @@ def truth_camera_cues(truth: dict, camera_names: list[str], t_index: int, frame:
         xy += rng.normal(0.0, noise_px, xy.shape) if noise_px > 0 else 0.0
         xy[~vis] = np.nan
         cov = np.where(vis[:, None, None], np.eye(2) * max(noise_px, 0.5) ** 2, np.nan)
-        out[name] = CameraCues(name, frame, xy, cov, np.where(vis, 100.0, 0.0), vis.astype(np.float64))
+        sil = None
+        if widths is not None and "masks" in truth:
+            sil = truth_silhouette(truth["masks"][c, t_index], widths[name])
+        out[name] = CameraCues(name, frame, xy, cov, np.where(vis, 100.0, 0.0), vis.astype(np.float64),
+                               silhouette=sil)
     return out
 
 

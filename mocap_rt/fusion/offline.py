@@ -113,8 +113,11 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
         tidx = align_truth(truth, frames_idx)
         rng = np.random.default_rng(seed)
 
+        widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
+
         def frame_cues(i, predictions):
-            return int(frames_idx[i]), truth_camera_cues(truth, names, int(tidx[i]), int(frames_idx[i]), noise_px, rng)
+            return int(frames_idx[i]), truth_camera_cues(truth, names, int(tidx[i]), int(frames_idx[i]), noise_px, rng,
+                                                         widths)
     else:
         from mocap_rt.perception.pipeline import CameraPerceiver, PerceptionConfig, config_for_source
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -35,6 +34,8 @@ import numpy as np
 
 from mocap_rt.body.analytic import (AnalyticConfig, analytic_pose, body_axes, pan_angle, refine_pan,
                                    refine_swivel)
+from mocap_rt.body.fit import BodyFitter, FitConfig
+from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
@@ -42,7 +43,9 @@ from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BoneLengths, body_model
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.views import (CUE_RADII_M, LR_PAIRS, RigProjector, fix_left_right, frontal_pair, predict_views,
+from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState, decide,
+                                      fill_missing, score_hypotheses, swap_pairs)
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, frontal_pair, predict_views,
                                    triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
@@ -61,6 +64,8 @@ MIN_BLOB_RADIUS_PX = 8.0
 # a second detection of the face in that view and dropped there.
 SAME_BLOB_RADII = 1.5
 C_FOOT_L, C_FOOT_R = CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")
+# two cues of a left/right pair closer than this (m) are one hand or foot labelled twice
+SAME_POINT_M = 0.03
 _EFFECTOR_CUES = np.array([CUE_NAMES.index(n) for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
 VIEW_MODES = ("all", "pair")
@@ -68,12 +73,6 @@ VIEW_MODES = ("all", "pair")
 # centres that disagree across views by design; it keeps the plain drop-worst rejection)
 _CONSENSUS_CUES = np.array([n != "torso" for n in CUE_NAMES])
 _NO_CUES = np.zeros(len(CUE_NAMES), dtype=bool)
-# the walking-side check swaps a pair only while the other pair is this many times its
-# margin on its own side
-SIDE_OTHER_MARGIN_FACTOR = 2.0
-# the walking-side check takes the walking direction (and its turn rate) from the head's
-# path over this long (about one gait cycle)
-SIDE_TRACK_S = 1.0
 IK_MODES = ("analytic", "ccd")
 
 
@@ -96,12 +95,9 @@ class FusionConfig:
     bone_lengths: BoneLengths | None = None
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
-    side_walk_speed_mps: float = 0.6       # walking-side identity check (``_check_sides``) above this head speed
-    side_max_turn_dps: float = 45.0        # ... and below this turn rate of the walking direction:
-    side_margin_hands_m: float = 0.10      # a hand pair whose left one lies this far on the walk's right, or a
-    side_margin_feet_m: float = 0.05       # foot pair this far, ...
-    side_frames: int = 8                   # ... while the other pair is on its side, this many more frames than on
-                                           # its own side, is swapped (0 = off)
+    silhouettes: bool = True               # fit the body to the cameras' silhouettes when the cues carry them
+    identity: IdentityConfig = field(default_factory=IdentityConfig)
+    fit: FitConfig = field(default_factory=FitConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
     analytic: AnalyticConfig = field(default_factory=AnalyticConfig)
     ccd: CcdConfig = field(default_factory=lambda: CcdConfig(angle_tolerance_deg=20.0, max_iterations=30))
@@ -174,20 +170,20 @@ class BodyTracker:
         self._tri = RayTriangulator(self.cameras)
         self._proj = RigProjector(self.cameras)
         self._centers = np.array([c.center for c in self.cameras])
+        self._sil_projection = rig_projection(self.cameras)
         self.filter = CueFilter(N_CUES, config.filter)
         self._calib: list[np.ndarray] = []
         self._calib_axes: list[np.ndarray] = []
         self.calibrated = config.bone_lengths is not None
         self._set_lengths(config.bone_lengths or BoneLengths())
         self._right: np.ndarray | None = None
+        self._axes: np.ndarray | None = None      # the last frame's body axes
         self._last_pose: tuple[np.ndarray, np.ndarray] | None = None
         self._pair: tuple[int, int] | None = None
         self._vel: np.ndarray | None = None
         self._swivel = np.zeros(4)   # elbow/knee pole swivels (analytic.refine_swivel)
         self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
-        self._side_votes = np.zeros(len(LR_PAIRS), dtype=np.int64)
-        self.side_swaps = 0   # left/right track swaps made by the walking-side check so far
-        self._side_track: deque[np.ndarray] = deque(maxlen=max(3, int(round(SIDE_TRACK_S * config.fps)) + 1))
+        self.identity = IdentityState()
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
@@ -196,6 +192,7 @@ class BodyTracker:
         self.model_full = body_model(lengths, "full")
         self._bvh = bvh_skeleton(self.model)
         self._rest_cues = self.model.rest_positions()[list(CUE_JOINT_INDEX)]
+        self._fitter = BodyFitter(self.model, self.config.analytic, self.config.fit)
 
     @property
     def bvh_skeleton(self) -> BvhSkeleton:
@@ -244,35 +241,35 @@ class BodyTracker:
         return X, used
 
     # ------------------------------------------------------------------ body
-    def solve_pose(self, cues_ik: np.ndarray, velocity: np.ndarray | None = None
+    def solve_pose(self, cues_ik: np.ndarray, velocity: np.ndarray | None = None,
+                   targets: SilhouetteTargets | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Body pose from six 3D cues (6, 3) (all finite), updating the pan state.
+        """Body pose from six 3D cues (6, 3) (head and torso finite), updating the pan state.
 
-        Returns (root (3,), angles (J, 3) radians, joints (J, 3) metres, axes (3, 3)).
+        With silhouettes (``targets`` with views) the pan and the limb swivels are fitted to
+        them and to the joint limits (``BodyFitter``); without, to the limits alone
+        (``refine_pan``, ``refine_swivel``). Returns (root (3,), angles (J, 3) radians,
+        joints (J, 3) metres, axes (3, 3)).
         """
-        axes = body_axes(cues_ik, self._right, velocity, self.config.analytic)
-        filled = None
-        if self.config.analytic.pan_search_deg > 0:
-            filled = self.fill_missing(cues_ik, axes)
-            axes = refine_pan(self.model, filled, axes, self.config.analytic, self._swivel)
-        if self.config.analytic.swivel_search_deg > 0:
-            filled = self.fill_missing(cues_ik, axes)
-            self._swivel = refine_swivel(self.model, filled, axes, self._swivel, self.config.analytic)
+        cfg = self.config.analytic
+        axes = body_axes(cues_ik, self._right, velocity, cfg)
+        if targets is not None and targets.n_views > 0:
+            res = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, self._swivel, targets)
+            axes, self._swivel = res.axes, res.swivel
+        else:
+            if cfg.pan_search_deg > 0:
+                axes = refine_pan(self.model, self.fill_missing(cues_ik, axes), axes, cfg, self._swivel)
+            if cfg.swivel_search_deg > 0:
+                self._swivel = refine_swivel(self.model, self.fill_missing(cues_ik, axes), axes, self._swivel, cfg)
         self._right = axes[:, 0]
+        self._axes = axes
         root, angles, joints = self.solve_with_axes(cues_ik, axes, self._swivel)
         return root, angles, joints, axes
 
     def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
-        """Cues (6, 3) with missing hands/feet put at the rest pose (arms hanging, legs straight).
-
-        Head and torso must be present. The rest pose is placed with the body axes at the torso.
-        """
-        out = cues_ik.copy()
-        missing = ~np.isfinite(out).all(axis=1)
-        if missing.any():
-            rest = self._rest_cues
-            out[missing] = out[C_TORSO] + (rest[missing] - rest[C_TORSO]) @ axes.T
-        return out
+        """Cues (6, 3) with missing hands/feet put at the rest pose (arms hanging, legs straight),
+        placed with the body axes at the torso (``identity.fill_missing``)."""
+        return fill_missing(cues_ik, axes, self._rest_cues)
 
     def solve_with_axes(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -328,6 +325,8 @@ class BodyTracker:
         timings: dict[str, float] = {}
         t_s = frame / self.config.fps
         uv, w = self._gather(cues)
+        targets = (SilhouetteTargets.from_cues(self.cameras, cues, self._sil_projection)
+                   if self.config.silhouettes else None)
         if self.config.fix_left_right:
             ref = self.filter.predict_at(t_s) if self.filter.alive.any() else None
             uv, w, n_fixed = fix_left_right(self._tri, self._proj, uv, w, ref)
@@ -336,9 +335,9 @@ class BodyTracker:
         t1 = time.perf_counter()
         timings["triangulate"] = (t1 - t0) * 1e3
         valid = np.isfinite(X).all(axis=1)
-        X = self._reject_duplicates(X, valid, t_s)
+        X = self._reject_duplicates(X, valid, t_s, used)
         valid = np.isfinite(X).all(axis=1)
-        X = self._check_sides(X, valid)
+        X = self._identify(X, valid, t_s, targets)
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
         valid &= accepted
         filt = np.where(self.filter.alive[:, None], self.filter.pos, np.nan)
@@ -354,7 +353,7 @@ class BodyTracker:
             v = self.filter.vel[C_TORSO]
             a = self.config.velocity_smoothing
             self._vel = v.copy() if self._vel is None else a * self._vel + (1 - a) * v
-            root, angles, joints, axes = self.solve_pose(cues_ik, self._vel)
+            root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets)
             pan = pan_angle(axes)
             self._last_pose = (root, angles)
             joint_valid = _joint_validity(have)
@@ -372,89 +371,55 @@ class BodyTracker:
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
                             root, angles, pan, pair, cues_ik, axes, joint_valid)
 
-    def _check_sides(self, X: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        """Left/right identity of hands and feet from the walking direction.
-
-        ``fix_left_right`` makes the views agree, but the whole body can still be mirrored:
-        a symmetric body seen from a ring looks the same with left and right exchanged and
-        the facing reversed, and at a cold start the labels come from perception's
-        "facing the camera" convention, right in the views in front of the person and wrong
-        in those behind. Walking breaks the symmetry: people face where they walk, so the
-        left hand/foot lies left of the head's horizontal velocity (up x heading), across
-        the track (hands ~0.45 m apart, feet ~0.05-0.15 m; the along-track swing does not
-        enter). Only a brisk, straight walk counts: the head's horizontal displacement over
-        the last ``SIDE_TRACK_S`` >= ``side_walk_speed_mps`` per second and its direction
-        turning slower than ``side_max_turn_dps`` between the two halves (the studio clips step
-        sideways through turns, and a kick sways the body). A pair is voted wrong in a
-        frame when it lies on the other side by more than its margin
-        (``side_margin_hands_m``, ``side_margin_feet_m``) *while the other pair is clearly on
-        its own side* (twice its margin): both pairs reversed is what walking backwards looks like (cmu_131_01
-        walks backwards at up to 0.9 m/s), and a fully mirrored body cannot be told from it
-        here, so that case is left alone. ``side_frames`` more wrong votes than right ones
-        swap the pair, measurement and filter tracks, so the next prediction (and with it
-        perception's labelling) follows. Returns X (6, 3), possibly with rows exchanged.
-        """
-        cfg = self.config
-        for k, (a, b) in enumerate(LR_PAIRS):
-            if not self.filter.alive[[a, b]].all():      # a track (re)starts: no evidence yet
-                self._side_votes[k] = 0
-        if cfg.side_frames <= 0 or not self.filter.alive[C_HEAD]:
+    def _identify(self, X: np.ndarray, valid: np.ndarray, t_s: float, targets: SilhouetteTargets | None
+                  ) -> np.ndarray:
+        """Left/right identity and heading as competing hypotheses (``fusion.identity``):
+        score the labelling and its alternatives, switch labels and filter tracks on clear
+        evidence. Returns X (6, 3), possibly with rows exchanged."""
+        cfg = self.config.identity
+        if not self.filter.alive[[C_HEAD, C_TORSO]].all():
+            self.identity.reset()        # the body (re)starts: acquire afresh, heading unknown
+            self._axes = None
+        if not cfg.enabled:
             return X
-        # the walking direction from the head's displacement over SIDE_TRACK_S (the head cue
-        # is the most precise, ~5 mm): a gait cycle's sway averages out, while an
-        # instantaneous heading a few degrees off leaks the feet's along-track separation
-        # (up to 0.6 m) into "across"
-        self._side_track.append(self.filter.pos[C_HEAD, :2].copy())
-        n = len(self._side_track)
-        if n < self._side_track.maxlen:
+        pred = self.filter.predict_at(t_s) if self.filter.alive.any() else np.full_like(X, np.nan)
+        cues = np.where(valid[:, None], X, pred)
+        if not np.isfinite(cues[[C_HEAD, C_TORSO]]).all():
             return X
-        half = n // 2
-        p0, pm, p1 = self._side_track[0], self._side_track[half], self._side_track[-1]
-        span_s = (n - 1) / cfg.fps
-        v = np.append((p1 - p0) / span_s, 0.0)
-        speed = float(np.hypot(v[0], v[1]))
-        if not speed >= cfg.side_walk_speed_mps:
+        costs = score_hypotheses(self._fitter, cues, self._rest_cues, self._axes, targets, cfg)
+        if targets is None or targets.n_views == 0:
+            costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
+        k = decide(self.identity, costs, cfg)
+        if k < 0:
             return X
-        # turn rate: the heading of the window's second half against its first half
-        d0, d1 = pm - p0, p1 - pm
-        turn = abs(np.arctan2(d0[0] * d1[1] - d0[1] * d1[0], d0 @ d1))
-        if np.degrees(turn) / (0.5 * span_s) > cfg.side_max_turn_dps:
-            return X
-        left = np.array([-v[1], v[0], 0.0]) / speed          # world up x heading
-        side = np.full(len(LR_PAIRS), np.nan)              # across-track offset, m (NaN: not measured)
-        margin = np.array([cfg.side_margin_hands_m, cfg.side_margin_feet_m])
-        for k, (a, b) in enumerate(LR_PAIRS):
-            if valid[a] and valid[b]:
-                side[k] = float((X[a] - X[b]) @ left)
-        for k, (a, b) in enumerate(LR_PAIRS):
-            # one pair against the other: both on the "wrong" side is walking backwards
-            # (or a mirrored body, which nothing here can tell apart): leave it
-            # and the other pair clearly on its side (x SIDE_OTHER_MARGIN_FACTOR: a backward
-            # walker's feet, reversed, still reach +4 cm during a step)
-            if side[k] < -margin[k] and side[1 - k] > SIDE_OTHER_MARGIN_FACTOR * margin[1 - k]:
-                self._side_votes[k] += 1
-            elif side[k] > margin[k]:
-                self._side_votes[k] = max(0, self._side_votes[k] - 1)
-            if self._side_votes[k] >= cfg.side_frames:
-                X = X.copy()
-                X[[a, b]] = X[[b, a]]
-                self.filter.swap(a, b)
-                self._side_votes[k] = 0
-                self.side_swaps += 1
-                log.info("left/right %s and %s swapped: on the wrong side of the walk", CUE_NAMES[a], CUE_NAMES[b])
+        X = swap_pairs(X, k)
+        for a, b in ALTERNATIVE_PAIRS[k]:
+            self.filter.swap(a, b)
+        if ALTERNATIVES[k] == "mirror" and self._right is not None:
+            self._right = -self._right
+            self._axes = self._axes * [-1.0, -1.0, 1.0]
+        self._swivel = np.zeros(4)
+        log.info("identity: switched to the %s alternative (costs %s)", ALTERNATIVES[k], np.round(costs, 1))
         return X
 
-    def _reject_duplicates(self, X: np.ndarray, valid: np.ndarray, t_s: float) -> np.ndarray:
-        """Drop a hand/foot measured on top of the head unless it was predicted there.
+    def _reject_duplicates(self, X: np.ndarray, valid: np.ndarray, t_s: float, used: np.ndarray) -> np.ndarray:
+        """Drop a hand/foot measured on top of the head unless it was predicted there, and
+        one of a left/right pair measured on top of the other.
 
         Perception re-acquiring a lost hand can take the face blob in every view; the
         triangulated "hand" is then the head. A real hand at the face was predicted near it.
+        A pair within ``SAME_POINT_M`` is one hand (foot) that different views labelled
+        differently (e.g. a cold start while the other is hidden everywhere): the label seen
+        by fewer views (``used`` (C, 6)) goes.
         """
+        X = X.copy()
+        for a, b in ((C_HAND_L, C_HAND_R), (C_FOOT_L, C_FOOT_R)):
+            if valid[a] and valid[b] and np.linalg.norm(X[a] - X[b]) < SAME_POINT_M:
+                X[b if used[:, a].sum() >= used[:, b].sum() else a] = np.nan
         if not valid[C_HEAD]:
             return X
         pred = self.filter.predict_at(t_s)
         dup = self.config.duplicate_m
-        X = X.copy()
         for c in (1, 2, 3, 4):
             if valid[c] and np.linalg.norm(X[c] - X[C_HEAD]) < dup:
                 p = pred[c]

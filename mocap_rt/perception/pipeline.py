@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mocap_rt.cues import CameraCues, CuePrediction
+from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette, CuePrediction
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
 from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, change_mask, largest_component_filled
@@ -66,6 +66,7 @@ class PerceptionConfig:
     torso_step_px: int = 0                # distance-transform subsampling; 0 = 2 if width > 400 else 1
     background_update_rate: float = 0.0   # > 0: slow background update (per frame blend weight)
     close_px: int = 0                     # > 0: morphological closing (square, this size) of the change mask
+    silhouette_bytes: int = SILHOUETTE_MAX_BYTES  # compact silhouette sent to fusion (packed bits); 0 = none
 
 
 def _from_table(cls, table: dict, where: str):
@@ -175,8 +176,9 @@ class CameraPerceiver:
             self.skin_tracker.step(np.zeros((1, 1), np.float32), (0, 0), (0, 0, 0, 0), None)
             self.shoe_tracker.step(np.zeros((1, 1), np.float32), (0, 0), (0, 0, 0, 0), None)
             t = time.perf_counter()
+            empty = CompactSilhouette(0, 0, 1, np.zeros((0, 0), bool)) if self.config.silhouette_bytes > 0 else None
             return CameraCues(self.camera.name, frame, xy, cov, area, conf, (0, 0, 0, 0),
-                              {"silhouette": (t1 - t0) * 1e3, "total": (t - t0) * 1e3})
+                              {"silhouette": (t1 - t0) * 1e3, "total": (t - t0) * 1e3}, empty)
         bx, by, bw, bh = box
         sil, skin, shoe = silhouette_colour(member, change, img, box, self._chroma, *self._emax)
         self._sil = sil
@@ -205,10 +207,12 @@ class CameraPerceiver:
         t4 = time.perf_counter()
         if self.config.background_update_rate > 0:
             self.background.update(img, self.last_silhouette, self.config.background_update_rate)
+        compact = (CompactSilhouette.from_box_mask(sil, box, self.config.silhouette_bytes)
+                   if self.config.silhouette_bytes > 0 else None)
         t5 = time.perf_counter()
         timings = {"silhouette": (t1 - t0) * 1e3, "colour": (t2 - t1) * 1e3, "blobs": (t3 - t2) * 1e3,
                    "torso": (t4 - t3) * 1e3, "total": (t5 - t0) * 1e3}
-        return CameraCues(self.camera.name, frame, xy, cov, area, conf, box, timings)
+        return CameraCues(self.camera.name, frame, xy, cov, area, conf, box, timings, compact)
 
     # ------------------------------------------------------------------ stages
     def _roi(self) -> tuple[int, int, int, int]:

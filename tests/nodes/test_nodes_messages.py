@@ -7,7 +7,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mocap_rt.body.skeleton import N_BONE_VALUES
-from mocap_rt.cues import CameraCues, CuePrediction
+from mocap_rt.cues import CameraCues, CompactSilhouette, CuePrediction
 from nodes.messages import (MESSAGE_TYPES, SCHEMA_VERSION, Background, Cues, Decoder, Frame, Keys,
                             MessageError, Pose, Prediction, Preview, Status, Trigger, decode_array,
                             encode_array)
@@ -30,10 +30,12 @@ def bools(shape):
 small_map = st.dictionaries(st.text(max_size=8), st.floats(allow_nan=False, width=64), max_size=4)
 
 triggers = st.builds(Trigger, names, u63, u63, u63, u63)
-cues = st.builds(lambda rig, cam, f, xy, cov, area, conf, bbox, tim, a, b, p: Cues(
-    rig, CameraCues(cam, f, xy, cov, area, conf, bbox, tim), a, b, p),
+silhouettes = st.none() | st.builds(CompactSilhouette, st.integers(-8, 700), st.integers(-8, 500), st.integers(1, 8),
+                                    st.tuples(st.integers(0, 30), st.integers(0, 50)).flatmap(bools))
+cues = st.builds(lambda rig, cam, f, xy, cov, area, conf, bbox, tim, sil, a, b, p: Cues(
+    rig, CameraCues(cam, f, xy, cov, area, conf, bbox, tim, sil), a, b, p),
     names, names, u63, arr((6, 2)), arr((6, 2, 2)), arr((6,)), arr((6,)),
-    st.tuples(*[st.integers(-10**6, 10**6)] * 4), small_map, u63, u63, floats)
+    st.tuples(*[st.integers(-10**6, 10**6)] * 4), small_map, silhouettes, u63, u63, floats)
 predictions = st.builds(lambda rig, cam, f, xy, vis, rad: Prediction(rig, CuePrediction(cam, f, xy, vis, rad)),
                         names, names, u63, arr((6, 2)), bools((6,)), arr((6,)))
 poses = st.builds(Pose, names, u63, u63, u63, arr((6, 3)), bools((6,)), arr((20, 3)),
@@ -165,9 +167,10 @@ def test_body_fields_with_wrong_types_are_dropped(cls):
             # accepted only if the value is still valid for that field (e.g. an int where any int goes)
             assert type(value) is type(original) or isinstance(original, (int, float))
             assert dec.total_drops == 0
-        # removing the field is always a drop
+        # removing the field is a drop, unless the field is optional
         del body[key]
-        assert dec.decode(msgpack.packb({**env, "b": body}, use_bin_type=True), cls) is None
+        back = dec.decode(msgpack.packb({**env, "b": body}, use_bin_type=True), cls)
+        assert back is None if key not in cls.OPTIONAL_FIELDS else back is not None
     check()
 
 
@@ -212,3 +215,25 @@ def test_keys_are_under_the_rig_and_names_are_checked():
     for bad in ("a/b", "a*", "", "x y", "$x"):
         with pytest.raises(ValueError):
             Keys(bad)
+
+
+def test_a_whole_image_silhouette_fits_a_cues_message_under_4_kb():
+    """Worst case: the person fills the 640x480 image; the packed silhouette keeps its byte
+    budget (the step grows) and the whole Cues message stays under 4 KB."""
+    sil = CompactSilhouette.from_box_mask(np.ones((480, 640), np.uint8), (0, 0, 640, 480))
+    assert sil.nbytes <= 3072 and sil.mask.all()
+    cc = CameraCues("cam_1", 7, np.zeros((6, 2)), np.zeros((6, 2, 2)), np.ones(6), np.ones(6), (0, 0, 640, 480),
+                    {"total": 1.0}, sil)
+    payload = Cues("studio", cc, 1, 2, 3.0).to_msgpack()
+    assert len(payload) <= 4096
+    assert same(Cues.from_msgpack(payload).cues.silhouette, sil)
+
+
+def test_a_silhouette_whose_bits_do_not_fit_its_width_is_a_counted_drop():
+    cc = CameraCues("cam_1", 7, np.zeros((6, 2)), np.zeros((6, 2, 2)), np.ones(6), np.ones(6), (0, 0, 20, 20), {},
+                    CompactSilhouette(0, 0, 2, np.ones((10, 10), bool)))
+    env = msgpack.unpackb(Cues("studio", cc, 1, 2, 3.0).to_msgpack(), raw=False)
+    env["b"]["sil"]["w"] = 30                       # 30 cells need 4 bytes a row, the rows have 2
+    dec = Decoder("t")
+    assert dec.decode(msgpack.packb(env, use_bin_type=True), Cues) is None
+    assert dec.drops == {"cues": 1}

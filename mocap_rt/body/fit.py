@@ -1,0 +1,199 @@
+"""Heading and limb swivel fitted to the silhouettes and the joint limits (analysis by synthesis).
+
+Six cue points leave the body's pan and the swivel of each elbow and knee about its
+shoulder->hand (hip->foot) line undetermined (seed digest A.5). ``BodyFitter.fit``
+chooses them: each candidate is an analytic pose (``analytic._analytic``) scored by
+
+    cost = limit violation (degrees, range-of-motion table)
+           + ``silhouette_weight`` * chamfer cost of its capsule body (cm^2, ``body.silhouette``)
+           + ``pan_change_cost`` * |pan turned| + per limb ``swivel_change_cost`` * |swivel changed|
+           + ``swivel_prior_cost`` * |swivel away from the default pole|   (degrees)
+
+and searched coordinate-wise in numba: the pan over +-``pan_search_deg`` around the
+given axes (``pan_step_deg``, then ``pan_refine`` halvings of the step around the best),
+then each limb's swivel over +-``swivel_search_deg`` around its previous
+value (the others held). The limits act as bounds through the violation term, which
+dominates (a degree of violation costs as much as 1 cm^2 of silhouette disagreement).
+A mirrored body cannot reach the silhouette's knees and elbows within the limits, which
+is what makes ``score`` tell the identity hypotheses apart (``fusion.identity``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from mocap_rt.body.analytic import _LIMB_JOINTS, AnalyticConfig, _analytic, _angles_from_frames, _cross, _rot_about
+from mocap_rt.body.kinematics import _fk
+from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SilhouetteTargets, body_capsules, capsules_cost, \
+    pose_points
+from mocap_rt.body.skeleton import J, BodyModel
+from mocap_rt.studio.body_map import POINT_NAMES
+
+M2_TO_CM2 = 1e4
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Weights and search ranges of ``BodyFitter`` (degrees; silhouette cost in cm^2)."""
+
+    silhouette_weight: float = 1.0     # per cm^2 of mean squared chamfer distance
+    pan_search_deg: float = 30.0
+    pan_step_deg: float = 15.0
+    pan_refine: int = 2                # then halve the step this many times around the best (+-7.5, +-3.75 deg)
+    pan_change_cost: float = 0.05      # per degree of pan turned from the given axes
+    swivel_search_deg: float = 30.0
+    swivel_step_deg: float = 15.0
+    swivel_change_cost: float = 0.05   # per degree changed since the previous frame
+    swivel_prior_cost: float = 0.1     # per degree away from the default pole
+
+
+@njit(cache=True, nogil=True)
+def _evaluate(cues, axes, swivel, lengths, poles, foot_rest, limb_joints, parents, offsets, rest_local, dof, lo, hi,
+              foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w_sil, R, ang, pos, rot, points, A, B):
+    """(limit violation degrees, silhouette cost cm^2) of the analytic pose for ``axes``, ``swivel``."""
+    pelvis = _analytic(cues, axes, lengths, poles[0], poles[1], poles[2], foot_rest, limb_joints, swivel, R)
+    _angles_from_frames(parents, rest_local, dof, R, ang)
+    viol = 0.0
+    for j in range(1, parents.shape[0]):
+        for q in range(3):
+            if dof[j, q]:
+                viol += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
+    sil = 0.0
+    if w_sil > 0.0:
+        _fk(parents, offsets, rest_local, pelvis, ang, pos, rot)
+        pose_points(pos, rot, foot_pitch, points)
+        body_capsules(points, A, B)
+        sil = capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline) * 1e4
+    return np.degrees(viol), sil
+
+
+@njit(cache=True, nogil=True)
+def _fit(cues, axes0, swivel_prev, lengths, poles, foot_rest, limb_joints, parents, offsets, rest_local, dof, lo, hi,
+         foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w, pan_offsets, n_refine, n_sw, sw_step,
+         out_axes, out_swivel, out_terms):
+    """Coordinate search (see the module doc); writes the best axes (3, 3), swivel (4,)
+    and terms (total, violation, silhouette) into the ``out_*`` arrays."""
+    nj = parents.shape[0]
+    R = np.empty((nj, 3, 3))
+    ang = np.empty((nj, 3))
+    pos = np.empty((nj, 3))
+    rot = np.empty((nj, 3, 3))
+    points = np.empty((len(POINT_NAMES), 3))
+    A = np.empty((N_CAPSULES, 3))
+    B = np.empty((N_CAPSULES, 3))
+    axc = np.empty((3, 3))
+    up = axes0[:, 2].copy()
+    right0 = axes0[:, 0].copy()
+    sw = swivel_prev.copy()
+    w_sil, c_pan, c_change, c_prior = w[0], w[1], w[2], w[3]
+    base = 0.0
+    for i in range(4):
+        base += c_prior * abs(np.degrees(sw[i]))
+    best = np.inf
+    best_a = 0.0
+    # the offsets, then n_refine times the best +- half the previous spacing
+    step = abs(pan_offsets[1] - pan_offsets[0]) if pan_offsets.shape[0] > 1 else 0.0
+    cands = pan_offsets.copy()
+    for it in range(n_refine + 1):
+        if it > 0:
+            step *= 0.5
+            cands = np.array([best_a - step, best_a + step])
+        for k in range(cands.shape[0]):
+            a = cands[k]
+            r = _rot_about(up, a, right0)
+            fw = _cross(up, r)
+            for i in range(3):
+                axc[i, 0], axc[i, 1], axc[i, 2] = r[i], fw[i], up[i]
+            viol, sil = _evaluate(cues, axc, sw, lengths, poles, foot_rest, limb_joints, parents, offsets, rest_local,
+                                  dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w_sil, R,
+                                  ang, pos, rot, points, A, B)
+            cost = viol + w_sil * sil + c_pan * abs(np.degrees(a)) + base
+            if cost < best:
+                best = cost
+                best_a = a
+                out_axes[:, :] = axc
+                out_terms[0], out_terms[1], out_terms[2] = cost, viol, sil
+    pan_cost = best - out_terms[1] - w_sil * out_terms[2] - base
+    out_swivel[:] = sw
+    for limb in range(4):
+        if n_sw == 0:
+            break
+        for k in range(-n_sw, n_sw + 1):
+            if k == 0:
+                continue
+            sw[:] = out_swivel
+            sw[limb] = swivel_prev[limb] + sw_step * k
+            viol, sil = _evaluate(cues, out_axes, sw, lengths, poles, foot_rest, limb_joints, parents, offsets,
+                                  rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline,
+                                  n_outline, w_sil, R, ang, pos, rot, points, A, B)
+            cost = viol + w_sil * sil + pan_cost
+            for i in range(4):
+                cost += c_prior * abs(np.degrees(sw[i])) + c_change * abs(np.degrees(sw[i] - swivel_prev[i]))
+            if cost < best:
+                best = cost
+                out_swivel[limb] = sw[limb]
+                out_terms[0], out_terms[1], out_terms[2] = cost, viol, sil
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """axes (3, 3) columns right, forward, up; swivel (4,) radians (arm_l, arm_r, leg_l,
+    leg_r); cost, violation_deg, silhouette_cm2 the terms of the chosen candidate."""
+
+    axes: np.ndarray
+    swivel: np.ndarray
+    cost: float
+    violation_deg: float
+    silhouette_cm2: float
+
+
+class BodyFitter:
+    """Pan and swivel search of one body model (see the module doc)."""
+
+    def __init__(self, model: BodyModel, analytic: AnalyticConfig = AnalyticConfig(),
+                 config: FitConfig = FitConfig()) -> None:
+        if model.preset != "paper":
+            raise ValueError("BodyFitter works on the analytic ('paper') model")
+        L = model.lengths
+        self.config = config
+        self._lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
+                                  L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
+        self._poles = np.radians([analytic.elbow_raise_deg, analytic.elbow_down_deg, analytic.knee_open_deg])
+        self._model_args = (np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2]), _LIMB_JOINTS, model.parents,
+                            model.offsets, model.rest_local, model.dof,
+                            np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
+                            float(np.radians(L.foot_pitch_deg)), CAPSULE_RADII_M)
+
+    def fit(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
+            targets: SilhouetteTargets | None, search_swivel: bool = True, pan_search_deg: float | None = None,
+            pan_step_deg: float | None = None, pan_refine: int | None = None) -> FitResult:
+        """Best pan and swivels for cues (6, 3) (all finite, metres, world) from ``axes``
+        (3, 3) and the previous ``swivel`` (4,) radians; ``targets`` None = limits only.
+        The pan is searched within +-``pan_search_deg`` in steps of ``pan_step_deg``, then
+        refined ``pan_refine`` times (defaults: the config's)."""
+        c = self.config
+        pan_deg = c.pan_search_deg if pan_search_deg is None else pan_search_deg
+        step = c.pan_step_deg if pan_step_deg is None else pan_step_deg
+        n_pan = int(pan_deg // step) if step > 0 else 0
+        offsets = np.radians(step * np.arange(-n_pan, n_pan + 1))
+        if pan_deg >= 180.0:                       # the full circle: -180 and 180 are one
+            offsets = offsets[np.abs(offsets) < np.pi - 1e-9]
+        out_axes, out_sw, terms = np.empty((3, 3)), np.zeros(4), np.zeros(3)
+        have = targets is not None and targets.n_views > 0
+        sil_args = targets.args() if have else _NO_VIEWS
+        w = np.array([c.silhouette_weight if have else 0.0, c.pan_change_cost, c.swivel_change_cost,
+                      c.swivel_prior_cost])
+        n_sw = int(c.swivel_search_deg // c.swivel_step_deg) if (search_swivel and c.swivel_step_deg > 0) else 0
+        sw0 = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
+        _fit(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64), sw0, self._lengths,
+             self._poles, *self._model_args, *sil_args, w, offsets, c.pan_refine if pan_refine is None else pan_refine,
+             n_sw,
+             np.radians(c.swivel_step_deg), out_axes, out_sw, terms)
+        return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]))
+
+
+_NO_VIEWS = (np.zeros((1, 3, 4)), np.ones(1), np.zeros((1, 6), np.int64), np.zeros(1, np.float32),
+             np.zeros(1, np.int64), np.zeros((1, 1, 2)), np.zeros(1, np.int64))

@@ -1,0 +1,140 @@
+"""Left/right identity and heading as competing hypotheses (issue 10, item 3).
+
+A symmetric body seen from a ring of cameras looks almost the same with its hands
+exchanged, its feet exchanged, or wholly mirrored (left and right exchanged and the
+facing turned by 180 deg): the cue points alone cannot tell these apart, and neither can
+the walking direction (people walk backwards and sideways). What can: the silhouettes (a
+mirrored body bends its knees and elbows the wrong way and puts the shank at the toe end
+of the shoe) and the joint limits (crossed arms or legs twist out of range).
+
+So every frame the current labelling and three alternatives are solved and scored alike
+(``score_hypotheses``: the pan searched within +-``pan_search_deg`` of the previous
+heading, turned by 180 deg for the mirror, default limb swivels; ``BodyFitter.fit`` cost = limit violation +
+silhouette chamfer + pan change). Each alternative's evidence is a leaky sum of how much
+cheaper it is than the current one (``decide``); the labels switch when the evidence
+passes ``switch_evidence`` and the alternative also wins this frame by ``frame_margin``
+plus ``frame_margin_frac`` of the current cost (hysteresis: one odd frame never
+switches, and a frame that no hypothesis fits well decides nothing). During the first ``acquire_frames`` of a
+track the threshold is ``acquire_factor`` times lower, so a cold start on any motion
+takes the right identity within a few frames, without a calibration pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mocap_rt.body.fit import BodyFitter
+from mocap_rt.body.silhouette import SilhouetteTargets
+from mocap_rt.names import CUE_NAMES
+
+C_HAND_L, C_HAND_R = CUE_NAMES.index("hand_l"), CUE_NAMES.index("hand_r")
+C_FOOT_L, C_FOOT_R = CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")
+C_TORSO, C_HEAD = CUE_NAMES.index("torso"), CUE_NAMES.index("head")
+# the alternatives to the current labelling, and the cue pairs each one exchanges
+ALTERNATIVES = ("hands", "feet", "mirror")
+ALTERNATIVE_PAIRS = (((C_HAND_L, C_HAND_R),), ((C_FOOT_L, C_FOOT_R),),
+                     ((C_HAND_L, C_HAND_R), (C_FOOT_L, C_FOOT_R)))
+# the swivel slots (arm_l, arm_r, leg_l, leg_r) each alternative exchanges
+_SWIVEL_ORDER = (np.array([1, 0, 2, 3]), np.array([0, 1, 3, 2]), np.array([1, 0, 3, 2]))
+
+
+@dataclass(frozen=True)
+class IdentityConfig:
+    """Hypothesis switching (cost units: degrees of limit violation = cm^2 of silhouette)."""
+
+    enabled: bool = True
+    pan_search_deg: float = 15.0    # pan search of every hypothesis around the previous heading
+    pan_refine: int = 1             # ... then one halving of the step around the best
+    cold_step_deg: float = 15.0     # without a previous heading: the whole circle in these steps
+    decay: float = 0.95             # evidence kept per frame
+    switch_evidence: float = 25.0   # leaky sum of (current - alternative) costs that switches
+    frame_margin: float = 0.0       # ... when the alternative also wins this frame by this
+    frame_margin_frac: float = 0.0  # ... plus this fraction of the current cost (a poor fit decides nothing)
+    acquire_frames: int = 15        # the first frames of a track ...
+    acquire_factor: float = 0.5     # ... switch on this fraction of the evidence
+
+
+@dataclass
+class IdentityState:
+    """Evidence (3,) per alternative (ALTERNATIVES order), frames seen, switches made."""
+
+    evidence: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES)))
+    frames: int = 0
+    switches: int = 0
+    last_costs: np.ndarray = field(default_factory=lambda: np.full(1 + len(ALTERNATIVES), np.nan))
+
+    def reset(self) -> None:
+        self.evidence[:] = 0.0
+        self.frames = 0
+
+
+def swap_pairs(X: np.ndarray, k: int) -> np.ndarray:
+    """A copy of the cue array X (6, ...) with alternative k's pairs exchanged."""
+    X = X.copy()
+    for a, b in ALTERNATIVE_PAIRS[k]:
+        X[[a, b]] = X[[b, a]]
+    return X
+
+
+def swap_swivel(swivel: np.ndarray, k: int) -> np.ndarray:
+    """The limb swivels (4,) relabelled by alternative k."""
+    return np.asarray(swivel)[_SWIVEL_ORDER[k]]
+
+
+def fill_missing(cues: np.ndarray, axes: np.ndarray, rest_cues: np.ndarray) -> np.ndarray:
+    """Cues (6, 3) with missing rows put at the rest pose (``rest_cues`` (6, 3), body frame)
+    placed with the body ``axes`` (3, 3) at the torso cue (which must be present)."""
+    out = cues.copy()
+    missing = ~np.isfinite(out).all(axis=1)
+    if missing.any():
+        out[missing] = out[C_TORSO] + (rest_cues[missing] - rest_cues[C_TORSO]) @ axes.T
+    return out
+
+
+def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray, prev_axes: np.ndarray | None,
+                     targets: SilhouetteTargets | None, config: IdentityConfig) -> np.ndarray:
+    """Costs (4,): the current labelling, then each of ALTERNATIVES, scored alike.
+
+    cues (6, 3) metres (head and torso finite; missing hands/feet are filled at rest).
+    Each hypothesis searches its pan within +-``pan_search_deg`` of the previous body axes
+    ``prev_axes`` (3, 3) (turned by 180 deg for the mirror; the body's up from the cues),
+    or, without previous axes, over the whole circle in steps of ``cold_step_deg``.
+    """
+    costs = np.empty(1 + len(ALTERNATIVES))
+    up = cues[C_HEAD] - cues[C_TORSO]
+    up = up / max(float(np.linalg.norm(up)), 1e-9)
+    right = np.array([1.0, 0.0, 0.0]) if prev_axes is None else prev_axes[:, 0]
+    right = right - up * (right @ up)
+    right = right / max(float(np.linalg.norm(right)), 1e-9)
+    for h in range(1 + len(ALTERNATIVES)):
+        X = cues if h == 0 else swap_pairs(cues, h - 1)
+        r = -right if (h == 1 + ALTERNATIVES.index("mirror") and prev_axes is not None) else right
+        axes = np.column_stack([r, np.cross(up, r), up])
+        X = fill_missing(X, axes, rest_cues)
+        if prev_axes is None:
+            costs[h] = fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=180.0,
+                                  pan_step_deg=config.cold_step_deg).cost
+        else:
+            costs[h] = fitter.fit(X, axes, None, targets, search_swivel=False,
+                                  pan_search_deg=config.pan_search_deg, pan_refine=config.pan_refine).cost
+    return costs
+
+
+def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> int:
+    """Update the evidence with one frame's ``costs`` (4,) (``score_hypotheses``); return the
+    alternative to switch to (index into ALTERNATIVES) or -1 to keep the labels."""
+    state.last_costs = costs.copy()
+    gain = costs[0] - costs[1:]
+    gain = np.where(np.isfinite(gain), gain, 0.0)
+    state.evidence = config.decay * state.evidence + gain
+    state.frames += 1
+    need = config.switch_evidence * (config.acquire_factor if state.frames <= config.acquire_frames else 1.0)
+    ok = (state.evidence > need) & (gain > config.frame_margin + config.frame_margin_frac * costs[0])
+    if not ok.any():
+        return -1
+    k = int(np.argmax(np.where(ok, state.evidence, -np.inf)))
+    state.evidence[:] = 0.0
+    state.switches += 1
+    return k

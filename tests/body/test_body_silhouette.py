@@ -1,0 +1,138 @@
+"""The capsule body, compact silhouettes, the chamfer cost and the pan/swivel fit."""
+
+import numpy as np
+import pytest
+
+from mocap_rt.body import silhouette as S
+from mocap_rt.body.analytic import body_axes
+from mocap_rt.body.estimate import bone_lengths_from_joints
+from mocap_rt.body.fit import BodyFitter
+from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.skeleton import J, BoneLengths, body_model
+from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette
+from mocap_rt.geometry.rig import ring_rig
+from mocap_rt.io.bvh import read_bvh
+from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES
+from mocap_rt.studio.body_map import POINT_NAMES, body_motion
+from mocap_rt.studio.body_shape import body_primitives
+from mocap_rt.studio.render import RenderConfig, StudioRenderer
+
+
+@pytest.fixture(scope="module")
+def walk(data_dir):
+    clip = read_bvh(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh")
+    return body_motion(clip, fps=30, n_frames=40, placement="centre")
+
+
+@pytest.fixture(scope="module")
+def rendered(walk):
+    """Frames 10 and 30 of the walk rendered by the studio into a 6-camera ring at 320x240:
+    {frame: {camera: CameraCues with the compact silhouette}}."""
+    rig = ring_rig(6, size=(320, 240))
+    ren = StudioRenderer(rig, config=RenderConfig(noise_sigma_levels=0.0))
+    out = {}
+    for f in (10, 30):
+        prims = body_primitives(walk.points[f])
+        cues = {}
+        for c, cam in enumerate(rig.cameras):
+            m = ren.render(c, prims, f).mask
+            ys, xs = np.nonzero(m)
+            box = (xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+            sil = CompactSilhouette.from_box_mask(m[box[1]:box[1] + box[3], box[0]:box[0] + box[2]], box)
+            cues[cam.name] = CameraCues(cam.name, f, np.full((6, 2), np.nan), np.full((6, 2, 2), np.nan),
+                                        np.zeros(6), np.zeros(6), box, {}, sil)
+        out[f] = cues
+    return rig, out
+
+
+def test_capsules_are_the_studio_body(walk):
+    A, B = np.empty((S.N_CAPSULES, 3)), np.empty((S.N_CAPSULES, 3))
+    for f in (0, 17, 39):
+        prims = body_primitives(walk.points[f])
+        S.body_capsules(walk.points[f], A, B)
+        assert prims.names == S.CAPSULE_NAMES
+        np.testing.assert_allclose(A, prims.a, atol=1e-12)
+        np.testing.assert_allclose(B, prims.b, atol=1e-12)
+        np.testing.assert_array_equal(S.CAPSULE_RADII_M, prims.radius)
+
+
+def test_model_shoe_lies_along_the_foot_centred_on_the_foot_joint():
+    model = body_model(BoneLengths(), "paper")
+    angles = np.zeros((len(JOINT_NAMES), 3))
+    angles[0, 2] = np.radians(30.0)                 # the body turned 30 deg about Z
+    pos, rot = forward_kinematics(model, np.array([0.2, -0.1, 1.0]), angles)
+    pts = np.empty((len(POINT_NAMES), 3))
+    S.pose_points(pos, rot, np.radians(model.lengths.foot_pitch_deg), pts)
+    fwd = np.array([-np.sin(np.radians(30.0)), np.cos(np.radians(30.0)), 0.0])   # body +Y turned
+    for s in ("l", "r"):
+        toe, heel = pts[POINT_NAMES.index(f"toe_{s}")], pts[POINT_NAMES.index(f"heel_{s}")]
+        np.testing.assert_allclose((toe + heel) / 2, pos[J[f"foot_{s}"]], atol=1e-12)
+        np.testing.assert_allclose(toe - heel, 2 * S.SHOE_HALF_LENGTH_M * fwd, atol=1e-9)   # level, forward
+        np.testing.assert_allclose(pts[POINT_NAMES.index(f"fingers_{s}")] - pos[J[f"hand_{s}"]],
+                                   pos[J[f"hand_{s}"]] - pos[J[f"wrist_{s}"]], atol=1e-12)
+
+
+@pytest.mark.parametrize("box", [(0, 0, 640, 480), (100, 37, 151, 333), (5, 9, 3, 2)])
+def test_compact_silhouette_keeps_its_budget_and_round_trips(box):
+    rng = np.random.default_rng(box[2])
+    x, y, w, h = box
+    yy, xx = np.mgrid[0:h, 0:w]
+    sil = ((xx - w / 2) ** 2 / (w / 2.5) ** 2 + (yy - h / 2) ** 2 / (h / 2.2) ** 2 < 1).astype(np.uint8)
+    sil[rng.random(sil.shape) < 0.01] ^= 1                       # salt and pepper
+    c = CompactSilhouette.from_box_mask(sil * 255, box)
+    assert c.nbytes <= SILHOUETTE_MAX_BYTES
+    back = CompactSilhouette.from_dict(c.to_dict())
+    assert (back.x0, back.y0, back.step) == (c.x0, c.y0, c.step)
+    np.testing.assert_array_equal(back.mask, c.mask)
+    full = np.zeros((480, 640), bool)
+    full[y:y + h, x:x + w] = sil > 0
+    rec = c.full_mask(640, 480)
+    if sil.sum() > 100:                                            # the shape survives the downsampling
+        assert (rec & full).sum() / (rec | full).sum() > 0.9
+
+
+def test_the_true_body_fits_its_silhouettes_and_a_turned_one_does_not(walk, rendered):
+    rig, frames = rendered
+    A, B = np.empty((S.N_CAPSULES, 3)), np.empty((S.N_CAPSULES, 3))
+    for f, cues in frames.items():
+        T = S.SilhouetteTargets.from_cues(rig.cameras, cues)
+        assert T.n_views == 6
+        pts = walk.points[f]
+        S.body_capsules(pts, A, B)
+        good = S.capsules_cost(A, B, S.CAPSULE_RADII_M, *T.args())
+        # the same body reflected front to back through the pelvis (hands and feet move too)
+        pelvis = pts[POINT_NAMES.index("pelvis")]
+        fwd = pts[POINT_NAMES.index("toe_r")] - pts[POINT_NAMES.index("heel_r")]
+        fwd[2] = 0
+        fwd /= np.linalg.norm(fwd)
+        S.body_capsules(pts - 2 * np.outer((pts - pelvis) @ fwd, fwd), A, B)
+        bad = S.capsules_cost(A, B, S.CAPSULE_RADII_M, *T.args())
+        assert np.sqrt(good) < 0.015           # RMS chamfer distance < 1.5 cm (cells of 2 px ~ 2 cm)
+        assert bad > 10 * good
+
+
+def test_fit_brings_a_wrong_heading_back(walk, rendered):
+    """Start 40 deg off the true heading: the silhouettes bring the pan back within 15 deg
+    (the truth's heading averages hips and shoulders, which counter-rotate in a walk; the
+    model's trunk is rigid)."""
+    rig, frames = rendered
+    lengths = bone_lengths_from_joints(walk.joints)
+    fitter = BodyFitter(body_model(lengths, "paper"))
+    for f, cues in frames.items():
+        T = S.SilhouetteTargets.from_cues(rig.cameras, cues)
+        X = walk.joints[f][list(CUE_JOINT_INDEX)]
+        jt = walk.joints[f]
+        right = jt[J["hip_r"]] - jt[J["hip_l"]] + jt[J["shoulder_r"]] - jt[J["shoulder_l"]]
+        true_pan = np.arctan2(right[1], right[0])
+        axes = body_axes(X)
+        up = axes[:, 2]
+        a = true_pan + np.radians(40.0)
+        r = np.array([np.cos(a), np.sin(a), 0.0])
+        r -= up * (r @ up)
+        r /= np.linalg.norm(r)
+        start = np.column_stack([r, np.cross(up, r), up])
+        res = fitter.fit(X, start, None, T, pan_search_deg=60.0)
+        got = np.arctan2(res.axes[1, 0], res.axes[0, 0])
+        err = np.degrees(abs((got - true_pan + np.pi) % (2 * np.pi) - np.pi))
+        assert err < 15.0, f"frame {f}: pan error {err:.1f} deg"
+        assert res.silhouette_cm2 < 5.0

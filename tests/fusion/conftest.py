@@ -1,0 +1,19 @@
+"""A short studio recording of a backwards walk, rendered once per session (identity tests)."""
+
+import pytest
+
+BACKWARDS_WALK_FRAMES = 45
+
+
+@pytest.fixture(scope="session")
+def backwards_walk(tmp_path_factory, data_dir):
+    """cmu_131_01 played backwards (walking backwards), 1.5 s from 2.0 s, 6-camera ring at
+    320x240, 30 fps, with truth and silhouettes: the recording directory."""
+    from mocap_rt.studio.synth import make_rig, synthesize
+    from mocap_rt.studio.variants import load_motion
+
+    bvh, name = load_motion(data_dir / "bvh" / "cmu" / "cmu_131_01_start_walk_stop.bvh", "reversed")
+    out = tmp_path_factory.mktemp("backwards_walk") / "rec"
+    synthesize(bvh, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=BACKWARDS_WALK_FRAMES / 30.0,
+               start_s=2.0, seed=3, motion_name=name)
+    return out
