@@ -29,6 +29,7 @@ import numpy as np
 from mocap_rt.body.estimate import bone_lengths_from_joints
 from mocap_rt.cues import CameraCues
 from mocap_rt.fusion.evaluate import truth_camera_cues
+from mocap_rt.fusion.identity import IdentityConfig
 from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
 from mocap_rt.fusion.views import CUE_RADII_M, RigProjector, predict_views
 from mocap_rt.geometry.rig import desktop_rig, ring_rig
@@ -255,7 +256,7 @@ def _closed_loop(args) -> None:
     print("\n[4] closed loop: perception of every camera -> fusion -> prediction -> next frame's perception"
           " (mocap-rt process; estimated bones)")
     print("    'before' = perception without region snap and lone-region acquisition;"
-          " fusion without the walking-side check")
+          " fusion without the identity hypotheses")
     cue_hdr = " ".join(f"{n[:6]:>11s}" for n in CUE_NAMES)
     print(f"{'recording / variant':44s} {'cue50':>6s} {'cue95':>6s} {'MPJPE':>6s} {'cover':>6s}  per cue median/p95 mm:")
     print(f"{'':72s}{cue_hdr}")
@@ -270,7 +271,7 @@ def _closed_loop(args) -> None:
         before = replace(pc, skin_blobs=old_blobs, shoe_blobs=old_blobs)
         print(f"{d.name}")
         for name, pcfg, fcfg in (("closed loop (default)", pc, FusionConfig(fps=fps)),
-                                 ("before (issue-5 behaviour)", before, FusionConfig(fps=fps, side_frames=0))):
+                                 ("before (issue-5 behaviour)", before, FusionConfig(fps=fps, identity=IdentityConfig(enabled=False)))):
             with tempfile.TemporaryDirectory() as tmp:
                 out = process_recording(d, tmp, fcfg, perception_config=pcfg, progress=False)
             acc = out.accuracy
