@@ -191,6 +191,12 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
             for k in range(K):
                 if not (np.isfinite(ua[k]) and np.isfinite(ub[k])):
                     continue
+                # lower bound: the distance to the capsule's bounding box (skip if no better)
+                rmax = max(ra[k], rb[k])
+                bx = max(0.0, min(ua[k], ub[k]) - rmax - qu, qu - max(ua[k], ub[k]) - rmax)
+                by = max(0.0, min(va[k], vb[k]) - rmax - qv, qv - max(va[k], vb[k]) - rmax)
+                if bx * bx + by * by >= best * best and best > 0.0:
+                    continue
                 du, dv = ub[k] - ua[k], vb[k] - va[k]
                 L2 = du * du + dv * dv
                 t = 0.0

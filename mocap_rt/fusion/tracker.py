@@ -327,17 +327,22 @@ class BodyTracker:
         uv, w = self._gather(cues)
         targets = (SilhouetteTargets.from_cues(self.cameras, cues, self._sil_projection)
                    if self.config.silhouettes else None)
+        ts = time.perf_counter()
+        timings["silhouettes"] = (ts - t0) * 1e3
         if self.config.fix_left_right:
             ref = self.filter.predict_at(t_s) if self.filter.alive.any() else None
             uv, w, n_fixed = fix_left_right(self._tri, self._proj, uv, w, ref)
             self.relabelled += n_fixed
         X, used = self.triangulate(uv, w)
         t1 = time.perf_counter()
-        timings["triangulate"] = (t1 - t0) * 1e3
+        timings["triangulate"] = (t1 - ts) * 1e3
         valid = np.isfinite(X).all(axis=1)
         X = self._reject_duplicates(X, valid, t_s, used)
         valid = np.isfinite(X).all(axis=1)
         X = self._identify(X, valid, t_s, targets)
+        t1b = time.perf_counter()
+        timings["identify"] = (t1b - t1) * 1e3
+        t1 = t1b
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
         valid &= accepted
         filt = np.where(self.filter.alive[:, None], self.filter.pos, np.nan)

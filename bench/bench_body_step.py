@@ -1,0 +1,91 @@
+"""Fusion per frame at 6 cameras with the silhouette fit (issue 10, item 5): ``BodyTracker.step``.
+
+    python -m bench body_step                       # the quick suite clips, 6-camera ring 640x480
+    python -m bench body_step --clips walk_backwards_131_01 --frames 90
+
+Each clip's truth 2D cues (+1 px noise) and truth silhouettes (in the compact form the
+camera workers send, ``truth_silhouette``) are fed to ``BodyTracker.step`` exactly as the
+fusion node does; perception is not timed. One core: numba runs single-threaded and
+OpenCV is set to one thread. Runs under the shared timing lock, one clip at a time.
+Prints median / p99 ms of the whole step and of its stages, with and without the
+silhouettes, and the ratios to the yardstick.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from bench.suite import ensure_recording, select, suite_clips
+from bench.yardstick import header, timing_lock, yardstick_ms
+
+TARGET_MEDIAN_MS, TARGET_P99_MS = 5.0, 8.0
+
+
+def time_clip(rec_dir, frames: int | None, silhouettes: bool) -> dict[str, np.ndarray]:
+    """Per-frame timings (ms) of ``BodyTracker.step`` over a recording's truth cues."""
+    from mocap_rt.fusion.evaluate import truth_camera_cues
+    from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+    from mocap_rt.io.recording import Recording
+
+    rec = Recording(rec_dir)
+    truth = rec.truth
+    names = list(rec.rig.names)
+    widths = {c.name: int(c.size[0]) for c in rec.rig.cameras} if silhouettes else None
+    n = rec.n_frames if frames is None else min(frames, rec.n_frames)
+    rng = np.random.default_rng(0)
+    cues = [truth_camera_cues(truth, names, f, f, 1.0, rng, widths) for f in range(n)]
+    rig, fps = rec.rig, rec.fps
+    rec.close()
+    # a first pass compiles/loads every kernel; the second is timed
+    for rep in range(2):
+        tracker = BodyTracker(rig, FusionConfig(fps=fps))
+        steps, stages = [], {}
+        for f in range(n):
+            t0 = time.perf_counter()
+            r = tracker.step(f, cues[f])
+            steps.append((time.perf_counter() - t0) * 1e3)
+            for k, v in r.timings_ms.items():
+                stages.setdefault(k, []).append(v)
+            tracker.predict(f + 1)
+    out = {k: np.asarray(v) for k, v in stages.items()}
+    out["step"] = np.asarray(steps)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--clips", default=None, help="comma-separated suite clip names (default: the quick set)")
+    ap.add_argument("--frames", type=int, default=None, help="frames per clip (default: all)")
+    ap.add_argument("--no-lock", action="store_true", help="do not take /tmp/mocap-timing.lock")
+    args, _ = ap.parse_known_args(argv)
+    import cv2
+
+    cv2.setNumThreads(1)
+    clips = select(suite_clips("quick"), args.clips)
+    ys = yardstick_ms()
+    print(header(ys))
+    print(f"{'clip':32s} {'silhouettes':>11s} {'step50':>7s} {'step99':>7s} {'x ys':>6s}  stages median ms")
+    rows = []
+    for clip in clips:
+        rec_dir = ensure_recording(clip)
+        for sil in (True, False):
+            with timing_lock(not args.no_lock):
+                t = time_clip(rec_dir, args.frames, sil)
+            med, p99 = float(np.median(t["step"])), float(np.percentile(t["step"], 99))
+            if sil:
+                rows.append((med, p99))
+            stages = ", ".join(f"{k} {np.median(v):.2f}" for k, v in t.items() if k not in ("step", "total"))
+            print(f"{clip.name[:32]:32s} {'yes' if sil else 'no':>11s} {med:7.2f} {p99:7.2f} {med / ys:6.1f}  {stages}",
+                  flush=True)
+    meds, p99s = np.array(rows).T
+    print(f"with silhouettes, over clips: median of medians {np.median(meds):.2f} ms ({np.median(meds) / ys:.1f}x "
+          f"yardstick), worst p99 {p99s.max():.2f} ms ({p99s.max() / ys:.1f}x); targets median <= "
+          f"{TARGET_MEDIAN_MS} ms, p99 <= {TARGET_P99_MS} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
