@@ -213,7 +213,9 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             try:
                 grab = source.grab(trig.frame)
             except (TimeoutError, OSError, ValueError) as exc:
-                log.warning("%s: frame %d not grabbed: %s", name, trig.frame, exc)
+                rt.source_drops += 1           # reported as decode_drops (status line, --stats)
+                if rt.source_drops <= 5 or rt.source_drops % 100 == 0:
+                    log.warning("%s: frame %d not grabbed (%d so far): %s", name, trig.frame, rt.source_drops, exc)
                 rt.publish_status()
                 continue
             pred = preds.get(trig.frame)

@@ -74,44 +74,43 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nodes.launcher import Launcher, RunConfig, _json_safe
-    from nodes.sources import parse_source
+    from nodes.preflight import check_run
 
-    kind, value = parse_source(args.source)
-    rig = args.rig
-    if rig is None:
-        if kind not in ("replay", "fake"):
-            raise ValueError(f"--rig is required for {kind} sources")
-        rig = Path(value) / "rig.toml"
-    if not Path(rig).is_file():
-        raise FileNotFoundError(f"rig file {rig} not found")
-    if kind in ("replay", "fake") and not (Path(value) / "recording.toml").is_file():
-        raise FileNotFoundError(f"--source {args.source}: {value} is not a recording directory (no recording.toml)")
-    if args.bones is not None:
-        from mocap_rt.body.skeleton import read_bone_lengths
-
-        read_bone_lengths(args.bones)       # a bad file is reported here, not by a dying node
-    if args.backgrounds_from is not None and not (Path(args.backgrounds_from) / "recording.toml").is_file():
-        raise FileNotFoundError(f"--backgrounds-from {args.backgrounds_from}: not a recording directory")
-    if args.stream is not None:
-        from mocap_rt.io.vmc import parse_vmc_target
-
-        parse_vmc_target(args.stream, args.allow_remote_stream)   # a bad target is reported here
-    if args.duration is not None and args.duration <= 0:
-        raise ValueError("--duration must be > 0")
+    rig = check_run(args)        # every input checked before a node starts: one line, no node traceback
     cfg = RunConfig(rig_path=Path(rig), source=args.source, speed=args.speed, duration_s=args.duration,
                     rerun=args.rerun, record=args.record, stats=args.stats, deadline_frac=args.deadline_frac,
-                    bones=args.bones,                     preview_every=args.preview_every, restart=not args.no_restart, log_dir=args.log_dir,
+                    bones=args.bones, preview_every=args.preview_every, restart=not args.no_restart,
+                    log_dir=args.log_dir,
                     status_line=not args.quiet, nice=args.nice,
                     rt_priority=args.rt_priority, stream=args.stream,
                     allow_remote_stream=args.allow_remote_stream, backgrounds_from=args.backgrounds_from)
     launcher = Launcher(cfg)
+    notice = record_notice(args.record) if args.record is not None else None
+    if notice:
+        print(notice, file=sys.stderr)
     print(f"mocap-rt run: rig {launcher.rig_name}, {len(launcher.rig)} cameras, trigger "
           f"{launcher.trigger_fps:g} fps ({'free-run' if cfg.speed is None else f'x{cfg.speed:g}'}), "
           f"node logs in {launcher.log_dir}", file=sys.stderr)
-    stats = launcher.run()
+    try:
+        stats = launcher.run()
+    except RuntimeError as exc:           # a node failed at start: the launcher names it and its log
+        print(f"mocap-rt run: error: {exc}", file=sys.stderr)
+        return 2
     summary = {k: stats[k] for k in ("frames_triggered", "poses_published", "frames_dropped", "latency_ms")}
     print(json.dumps(_json_safe(summary)))
     return 0
+
+
+def record_notice(record: Path) -> str | None:
+    """The line to print when ``--record DIR`` already holds a recording (the recorder then writes
+    ``poses_001.*`` beside it, never over it), else None."""
+    from nodes.recorder import output_paths
+
+    npz, bvh, bones, _ = output_paths(Path(record))
+    if npz.name == "poses.npz":
+        return None
+    return f"mocap-rt run: {record} already holds a recording; this one is written as {bvh.name}, {npz.name} " \
+           f"and {bones.name} beside it"
 
 
 def run_node(args: argparse.Namespace) -> int:

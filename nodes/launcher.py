@@ -466,11 +466,13 @@ class Launcher:
         lat = percentiles(m.latencies_ms(last=300))
         cams = m.alive_nodes("camera")
         n_cams = sum(1 for n in self.nodes.values() if n.role == "camera")
-        drops = sum(v["drops"] for k, v in m.node_table().items())
+        table = m.node_table()
+        drops = sum(v["drops"] for v in table.values())
+        decode = sum(v["decode_drops"] for v in table.values()) + m.decoder.total_drops
         t = 0.0 if self.t_sync_start is None else time.monotonic() - self.t_sync_start
         return (f"t={t:6.1f}s  pose fps {m.recent_fps():5.1f}  triggered {trig}  poses {poses}  "
                 f"no-pose {missing}  latency p50 {lat['p50']:.1f} p99 {lat['p99']:.1f} ms  "
-                f"node drops {drops}  cameras alive {len(cams)}/{n_cams}")
+                f"node drops {drops}  decode drops {decode}  cameras alive {len(cams)}/{n_cams}")
 
     def run(self) -> dict:
         """start -> supervise until done -> stop; returns the statistics dict."""

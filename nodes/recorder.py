@@ -26,7 +26,6 @@ to their last rewrite, the NPZ has the rest).
 from __future__ import annotations
 
 import logging
-import os
 import queue
 import sys
 import time
@@ -37,6 +36,7 @@ import numpy as np
 from mocap_rt.body.bvh_export import bvh_skeleton_of
 from mocap_rt.body.skeleton import BoneLengths, write_bone_lengths
 from mocap_rt.io.bvh import BvhStreamWriter
+from mocap_rt.io.files import atomic_write
 from nodes.frame_window import FrameWindow
 from nodes.messages import Background, Frame, Keys, Pose, Trigger
 from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
@@ -100,12 +100,8 @@ class PoseLog:
         """Write ``poses.npz`` atomically (tmp file + fsync + rename)."""
         if not self._dirty:
             return
-        tmp = self.path.with_name(self.path.stem + ".tmp.npz")
-        with open(tmp, "wb") as fh:
+        with atomic_write(self.path, "wb") as fh:
             np.savez(fh, **self.arrays())
-            fh.flush()
-            os.fsync(fh.fileno())
-        tmp.replace(self.path)
         self._dirty = False
 
 

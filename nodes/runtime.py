@@ -188,6 +188,7 @@ class NodeRuntime:
         self.decoder = Decoder(node)
         self.meter = RateMeter()
         self.drops = 0
+        self.source_drops = 0        # frames the source could not decode (a truncated video segment)
         self.extra: dict[str, float] = {}
         self.state = "starting"
         self._status_pub = session.declare_publisher(keys.status(node))
@@ -217,7 +218,7 @@ class NodeRuntime:
         t = os.times()
         msg = Status(self.keys.rig, self.node, self.role, os.getpid(), time.monotonic_ns(), self.state,
                      self.meter.fps(now), self.meter.median_ms(), self.meter.frames, self.drops,
-                     self.decoder.total_drops, t.user + t.system, dict(self.extra))
+                     self.decoder.total_drops + self.source_drops, t.user + t.system, dict(self.extra))
         try:
             self._status_pub.put(msg.to_msgpack())
         except Exception as exc:  # a status report must never stop the node

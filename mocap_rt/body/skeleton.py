@@ -132,7 +132,9 @@ def read_bone_lengths(path: str | Path) -> BoneLengths:
 
 def write_bone_lengths(lengths: BoneLengths, path: str | Path) -> None:
     """Write ``[bones]`` TOML (round-trips through ``read_bone_lengths``)."""
-    Path(path).write_text(dumps_toml({"bones": asdict(lengths)}), encoding="utf-8")
+    from mocap_rt.io.files import atomic_write_text
+
+    atomic_write_text(path, dumps_toml({"bones": asdict(lengths)}))
 
 
 N_BONE_VALUES = len(fields(BoneLengths))     # length of ``BoneLengths.as_array()``

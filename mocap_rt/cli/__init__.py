@@ -39,8 +39,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# what a bad input raises: the project's errors (RecordingError, RigFileError, BvhError,
+# MarkerFileError, OutputError ... are ValueErrors) and the OS's (missing files, permissions)
+USER_ERRORS = (ValueError, OSError)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand. A bad input ends it with one line ``mocap-rt COMMAND: error: ...`` on
+    stderr and exit code 2 (as argparse does for a bad flag); ``-v`` adds the traceback."""
     parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    for a in argv:
+        # Python 3.11's argparse turns "--opt=--" into an empty list instead of an error
+        if a.startswith("--") and a.endswith("=--"):
+            parser.error(f"argument {a[:-3]}: expected a value, got '--'")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -48,7 +60,11 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         return 130
-    except (ValueError, FileNotFoundError, OSError) as exc:
+    except USER_ERRORS as exc:
+        if args.verbose:
+            import traceback
+
+            traceback.print_exc()
         print(f"mocap-rt {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

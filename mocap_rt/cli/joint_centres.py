@@ -29,16 +29,20 @@ def register(subparsers) -> None:
     p.add_argument("--similarity", action="store_true",
                    help="rigid preprocessing with a per-frame scale (the patent's similarity model)")
     p.add_argument("--with-markers", action="store_true", help="also copy the trial's markers into --out")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from mocap_rt.io.files import claim_outputs, refuse_input_as_output
     from mocap_rt.markers.io import MarkerData, read_markers, write_trc
     from mocap_rt.markers.segments import load_segments
     from mocap_rt.markers.trial import joint_centres_for_trial
 
+    refuse_input_as_output(args.out, [args.trial, args.segments])
+    claim_outputs([args.out], args.overwrite)
     t0 = time.perf_counter()
     data = read_markers(args.trial)
     segset = load_segments(args.segments)

@@ -22,6 +22,8 @@ def register(subparsers) -> None:
                    help="feed the truth's 2D cues instead of perception (studio recordings)")
     p.add_argument("--noise-px", type=float, default=1.0, help="pixel noise added with --truth-2d")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the poses.* and bones.toml of an earlier run in OUT_DIR")
     p.set_defaults(func=run)
 
 
@@ -31,10 +33,17 @@ def run(args: argparse.Namespace) -> int:
     from mocap_rt.body.skeleton import read_bone_lengths
     from mocap_rt.fusion.offline import process_recording
     from mocap_rt.fusion.tracker import FusionConfig
+    from mocap_rt.io.files import claim_outputs, refuse_input_as_output
 
     rec = Path(args.rec_dir)
     if not rec.is_dir():
         raise FileNotFoundError(f"recording directory not found: {rec}")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
+    outputs = [Path(args.out) / name for name in ("poses.bvh", "poses.npz", "bones.toml", "poses.c3d", "poses.trc")]
+    for o in outputs:
+        refuse_input_as_output(o, [args.bones, *(rec / n for n in ("truth.npz", "rig.toml"))])
+    claim_outputs(outputs, args.overwrite)
     bones = read_bone_lengths(args.bones) if args.bones else None
     cfg = FusionConfig(views=args.views, ik=args.ik, bone_lengths=bones)
     out = process_recording(rec, args.out, cfg, max_frames=args.max_frames, truth_2d=args.truth_2d,

@@ -94,9 +94,14 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
     from mocap_rt.body.skeleton import write_bone_lengths
     from mocap_rt.io.bvh import write_bvh
     from mocap_rt.io.exports import write_pose_exports
+    from mocap_rt.io.files import atomic_write
     from mocap_rt.io.recording import Recording
 
+    if max_frames is not None and max_frames < 1:
+        raise ValueError(f"max_frames must be >= 1, got {max_frames}")
     rec = Recording(rec_dir)
+    if rec.n_frames < 1:
+        raise ValueError(f"{rec_dir}: the recording has no frames")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     config = replace(config or FusionConfig(), fps=float(rec.fps))
@@ -158,14 +163,16 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
     if t_perc:
         out.timings_ms["perception_6cam_median"] = float(np.median(t_perc))
     lengths = tracker.lengths
-    write_bone_lengths(lengths, out_dir / "bones.toml")
+    # every output is written whole under a temporary name and renamed (mocap_rt.io.files)
     write_bvh(out_dir / "poses.bvh", tracker.bvh_skeleton, out.bvh_rows, 1.0 / config.fps)
-    np.savez_compressed(out_dir / "poses.npz", joints=out.joints, joint_names=np.array(JOINT_NAMES),
-                        frames=out.frames, cues=out.cues, cue_names=np.array(CUE_NAMES),
-                        cue_valid=out.cue_valid, joint_valid=out.joint_valid, pan_rad=out.pan_rad,
-                        bone_lengths=np.array(list(asdict(lengths).values())),
-                        bone_length_names=np.array(list(asdict(lengths).keys())))
+    with atomic_write(out_dir / "poses.npz", "wb") as fh:
+        np.savez_compressed(fh, joints=out.joints, joint_names=np.array(JOINT_NAMES),
+                            frames=out.frames, cues=out.cues, cue_names=np.array(CUE_NAMES),
+                            cue_valid=out.cue_valid, joint_valid=out.joint_valid, pan_rad=out.pan_rad,
+                            bone_lengths=np.array(list(asdict(lengths).values())),
+                            bone_length_names=np.array(list(asdict(lengths).keys())))
     write_pose_exports(out_dir / "poses", out.frames, out.joints, config.fps)
+    write_bone_lengths(lengths, out_dir / "bones.toml")
     if truth is not None:
         out.accuracy = accuracy(truth, out.frames, out.cues, np.where(out.joint_valid[..., None], out.joints, np.nan))
     rec.close()

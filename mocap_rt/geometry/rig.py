@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from mocap_rt.geometry.camera import Camera, look_at, rotation_from_rodrigues
+from mocap_rt.io.files import atomic_write_text
 
 # Camera.extra key holding the TOML table name when it differs from the camera name.
 TABLE_KEY = "__table__"
@@ -147,10 +148,7 @@ def rig_to_toml(rig: Rig) -> str:
 
 def write_rig(rig: Rig, path: str | Path) -> None:
     """Write atomically (temp file + rename), so a crash never leaves half a rig."""
-    path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(rig_to_toml(rig))
-    tmp.replace(path)
+    atomic_write_text(path, rig_to_toml(rig))
 
 
 def _camera_from_table(key: str, table: dict, where: str) -> Camera:
@@ -175,6 +173,7 @@ def _camera_from_table(key: str, table: dict, where: str) -> Camera:
             raise ValueError(f"matrix must be 3x3, got shape {matrix.shape}")
         if not np.all(np.isfinite(rot)):
             raise ValueError("rotation has NaN or inf")
+        _check_intrinsics(matrix, size)
         if table.get("fisheye", False) not in (False, 0):
             raise ValueError("fisheye cameras are not supported (the camera model is pinhole + OpenCV distortion)")
         extra = {k: v for k, v in table.items() if k not in _CAMERA_KEYS}
@@ -193,6 +192,22 @@ def _camera_from_table(key: str, table: dict, where: str) -> Camera:
         )
     except (ValueError, TypeError) as exc:
         raise RigFileError(f"{where}: [{key}]: {exc}") from exc
+
+
+# focal lengths a real camera can have, in image widths: 0.01 w is a ~178 deg field of view,
+# 100 w a 0.6 deg one; anything outside is a unit or typing error (fx = 1e-300 put a person 2.8 m tall)
+FOCAL_RANGE_WIDTHS = (0.01, 100.0)
+
+
+def _check_intrinsics(matrix: np.ndarray, size: np.ndarray) -> None:
+    """ValueError naming the field for sizes and focal lengths no camera has."""
+    if not (np.all(np.isfinite(size)) and np.all(size >= 1)):
+        raise ValueError(f"size must be two positive numbers [width, height], got {size.tolist()}")
+    lo, hi = (f * float(size[0]) for f in FOCAL_RANGE_WIDTHS)
+    for label, v in (("fx", matrix[0, 0]), ("fy", matrix[1, 1])):
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise ValueError(f"matrix {label} = {v:g} px is not a plausible focal length for an image "
+                             f"{size[0]:g} px wide (expected {lo:g}..{hi:g} px)")
 
 
 def read_rig(path: str | Path) -> Rig:

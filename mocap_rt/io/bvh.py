@@ -15,12 +15,15 @@ Bandai-Namco: Y up, cm); ``mocap_rt.studio.body_map`` converts to the world fram
 from __future__ import annotations
 
 import logging
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+from mocap_rt.io.files import atomic_write
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +32,9 @@ ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
 _VALID_CHANNELS = POSITION_CHANNELS + ROTATION_CHANNELS
 # Stream writer: seconds of motion kept in memory before it is written and flushed.
 STREAM_FLUSH_INTERVAL_S = 1.0
+# offsets (cm or m) and angles (deg) of any real clip are far below this; 1e300 or NaN in a
+# clip would put NaN joints in a recording
+MAX_BVH_VALUE = 1e6
 # Width of the "Frames:" count field of a streamed file, rewritten in place on flush.
 _FRAMES_FIELD_WIDTH = 12
 
@@ -262,8 +268,8 @@ def read_bvh(path: str | Path) -> BvhClip:
         frame_time = float(header["Frame Time"])
     except ValueError:
         raise BvhError(f"{where}: bad 'Frames:' or 'Frame Time:' value {header}") from None
-    if frame_time <= 0 or n_frames < 0:
-        raise BvhError(f"{where}: Frames must be >= 0 and Frame Time > 0, got {header}")
+    if not (math.isfinite(frame_time) and frame_time > 0) or n_frames < 0:
+        raise BvhError(f"{where}: Frames must be >= 0 and Frame Time a number > 0, got {header}")
     n_ch = skeleton.n_channels
     data_lines = [ln for ln in lines[i:] if ln.strip()]
     if len(data_lines) < n_frames:
@@ -289,7 +295,24 @@ def read_bvh(path: str | Path) -> BvhClip:
             except ValueError:
                 raise BvhError(f"{where}: motion line {k + 1} (after line {first}) has a non-number") from None
         raise BvhError(f"{where}: motion table malformed")
-    return BvhClip(skeleton, flat.reshape(n_frames, n_ch), frame_time)
+    motion = flat.reshape(n_frames, n_ch)
+    _check_magnitudes(where, skeleton, motion)
+    return BvhClip(skeleton, motion, frame_time)
+
+
+def _check_magnitudes(where: str, skeleton: BvhSkeleton, motion: np.ndarray) -> None:
+    """BvhError naming the first offset or motion value that is NaN/inf or beyond ``MAX_BVH_VALUE``."""
+    offsets = skeleton.offsets
+    bad = ~np.isfinite(offsets) | (np.abs(offsets) > MAX_BVH_VALUE)
+    if bad.any():
+        j = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise BvhError(f"{where}: OFFSET of {skeleton.names[j]!r} is {offsets[j].tolist()}: "
+                       f"values must be finite and within +-{MAX_BVH_VALUE:g}")
+    bad = ~np.isfinite(motion) | (np.abs(motion) > MAX_BVH_VALUE)
+    if bad.any():
+        f, c = (int(v) for v in np.argwhere(bad)[0])
+        raise BvhError(f"{where}: motion line {f + 1} value {c + 1} is {motion[f, c]:g}: "
+                       f"values must be finite and within +-{MAX_BVH_VALUE:g}")
 
 
 # ----------------------------------------------------------------------------- kinematics
@@ -440,13 +463,10 @@ def write_bvh(path: str | Path, skeleton: BvhSkeleton, motion: np.ndarray, frame
     motion = _check_motion(skeleton, motion)
     if frame_time_s <= 0:
         raise ValueError(f"frame_time_s must be > 0, got {frame_time_s}")
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+    with atomic_write(path) as fh:
         fh.write(hierarchy_text(skeleton))
         fh.write(f"MOTION\nFrames: {motion.shape[0]}\nFrame Time: {_fmt(frame_time_s)}\n")
         fh.write(_motion_lines(motion))
-    os.replace(tmp, path)
 
 
 class BvhStreamWriter:
@@ -496,14 +516,10 @@ class BvhStreamWriter:
         self.flush()
         self._fh.seek(self._data_pos)
         motion = self._fh.read()
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        with open(tmp, "wb") as out:
+        with atomic_write(self.path, "wb") as out:
             out.write(self._header(skeleton, self.n_written))
             data_pos = out.tell()
             out.write(motion)
-            out.flush()
-            os.fsync(out.fileno())
-        os.replace(tmp, self.path)
         self._fh.close()
         self._fh = open(self.path, "r+b")
         self._fh.seek(0, os.SEEK_END)

@@ -23,6 +23,7 @@ import io
 import logging
 import math
 import tomllib
+import zipfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -30,6 +31,7 @@ import cv2
 import numpy as np
 
 from mocap_rt.geometry.rig import Rig, RigFileError, dumps_toml, read_rig, write_rig
+from mocap_rt.io.files import atomic_write, atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +48,11 @@ _CODEC_EXT = {"MJPG": ".avi", "XVID": ".avi", "FFV1": ".avi", "mp4v": ".mp4"}
 
 class RecordingError(ValueError):
     """A recording that cannot be read; the message names the file and field."""
+
+
+def _toml_value(v) -> str:
+    """A value as it reads in the TOML file (``true``, ``nan``, ``0``)."""
+    return str(v).lower() if isinstance(v, bool) or (isinstance(v, float) and not math.isfinite(v)) else repr(v)
 
 
 def _segment_name(index: int, ext: str, part: bool = False) -> str:
@@ -86,9 +93,7 @@ class RecordingWriter:
         meta = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "fps": self.fps,
                 "cameras": list(rig.names), "codec": codec, "segment_frames": self.segment_frames,
                 "source": source}
-        tmp = self.path / "recording.toml.tmp"
-        tmp.write_text(dumps_toml({"recording": meta}))
-        tmp.replace(self.path / "recording.toml")
+        atomic_write_text(self.path / "recording.toml", dumps_toml({"recording": meta}))
         self._table = open(self.path / "frames.csv", "w", newline="", encoding="utf-8")
         self._table.write("frame," + ",".join(rig.names) + "\n")
         self._table.flush()
@@ -166,9 +171,8 @@ class RecordingWriter:
 
     def write_truth(self, truth: dict) -> None:
         """Store the studio's ground truth (``truth.npz``, compressed; see the docs for keys)."""
-        tmp = self.path / "truth.tmp.npz"
-        np.savez_compressed(tmp, **{k: np.asarray(v) for k, v in truth.items()})
-        tmp.replace(self.path / "truth.npz")
+        with atomic_write(self.path / "truth.npz", "wb") as fh:
+            np.savez_compressed(fh, **{k: np.asarray(v) for k, v in truth.items()})
 
     def close(self) -> None:
         self._close_segment()
@@ -200,8 +204,8 @@ class Recording:
             self.rig = read_rig(self.path / "rig.toml")
         except FileNotFoundError:
             raise RecordingError(f"{self.path / 'rig.toml'}: missing (every recording has its rig)") from None
-        except RigFileError as exc:
-            raise RecordingError(f"{self.path / 'rig.toml'}: {exc}") from None
+        except RigFileError as exc:           # its message names the file
+            raise RecordingError(str(exc)) from None
         if list(self.rig.names) != self.camera_names:
             raise RecordingError(f"{self.path / 'recording.toml'}: field 'cameras' {self.camera_names} "
                                  f"does not match the rig's cameras {list(self.rig.names)}")
@@ -232,6 +236,11 @@ class Recording:
         for key, typ in (("fps", (int, float)), ("cameras", list), ("codec", str), ("segment_frames", int)):
             if not isinstance(rec.get(key), typ):
                 raise RecordingError(f"{p}: field {key!r} missing or of the wrong type")
+        fps, seg = rec["fps"], rec["segment_frames"]
+        if isinstance(fps, bool) or not (math.isfinite(fps) and fps > 0):
+            raise RecordingError(f"{p}: field 'fps' must be a positive finite number, got {_toml_value(fps)}")
+        if isinstance(seg, bool) or seg <= 0:
+            raise RecordingError(f"{p}: field 'segment_frames' must be an integer > 0, got {_toml_value(seg)}")
         if rec["codec"] not in _CODEC_EXT:
             raise RecordingError(f"{p}: field 'codec' = {rec['codec']!r} unknown")
         self.fps = float(rec["fps"])
@@ -265,8 +274,16 @@ class Recording:
                 raise RecordingError(f"{p}, line {k}: not a number") from None
         self.frames = np.array(frames, dtype=np.int64)
         self.timestamps = np.array(stamps, dtype=np.float64).reshape(-1, len(self.camera_names))
-        if np.any(np.diff(self.frames) <= 0):
-            raise RecordingError(f"{p}: frame indices must increase")
+        step = np.diff(self.frames)
+        if np.any(step <= 0):
+            k = int(np.flatnonzero(step <= 0)[0])
+            raise RecordingError(f"{p}, line {k + 3}: frame {self.frames[k + 1]} after {self.frames[k]}: "
+                                 f"frame indices must increase")
+        # a live recording skips the frames no camera answered; any other has every frame
+        if self.source != "live" and np.any(step != 1):
+            k = int(np.flatnonzero(step != 1)[0])
+            raise RecordingError(f"{p}, line {k + 3}: frame {self.frames[k + 1]} follows {self.frames[k]} "
+                                 f"({step[k] - 1} rows missing): rows no longer match the video frames")
 
     def _scan_segments(self, name: str) -> list[Path]:
         d = self.path / "video" / name
@@ -290,10 +307,37 @@ class Recording:
         self.timestamps = self.timestamps[:n]
         if n == 0 and n_rows > 0:
             raise RecordingError(f"{self.path / 'video'}: no complete video segment")
+        if n_seg and n_rows <= (n_seg - 1) * self.segment_frames:
+            raise RecordingError(f"{self.path / 'frames.csv'}: {n_rows} rows, but the video has {n_seg} segments "
+                                 f"of {self.segment_frames} frames: rows are missing")
+        self._check_last_segments(n_rows)
         for name, segs in self._segments.items():
             for s in segs[: math.ceil(n / self.segment_frames) if n else 0]:
                 if s.stat().st_size == 0:
                     raise RecordingError(f"{s}: empty video file")
+
+    def _check_last_segments(self, n_rows: int) -> None:
+        """Each camera's last closed segment: its image size is the rig's, and it holds no more
+        frames than ``frames.csv`` has rows for (a table with missing rows no longer says which
+        image is which frame)."""
+        for name, segs in self._segments.items():
+            if not segs:
+                continue
+            cap = cv2.VideoCapture(str(segs[-1]), cv2.CAP_FFMPEG)
+            try:
+                size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+                count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            finally:
+                cap.release()
+            if size == (0, 0):
+                continue             # unreadable: reported when its frames are read
+            if size != tuple(self.rig[name].size):
+                raise RecordingError(f"{segs[-1]}: images are {size[0]}x{size[1]}, the rig's camera {name!r} "
+                                     f"is {self.rig[name].size[0]}x{self.rig[name].size[1]} (rig.toml 'size')")
+            rows_in_last = n_rows - (len(segs) - 1) * self.segment_frames
+            if count > rows_in_last:
+                raise RecordingError(f"{self.path / 'frames.csv'}: {n_rows} rows, but the video of {name!r} "
+                                     f"has {(len(segs) - 1) * self.segment_frames + count} frames: rows are missing")
 
     def _expected_len(self, segment: int) -> int:
         return min(self.segment_frames, self.n_frames - segment * self.segment_frames)
@@ -400,8 +444,9 @@ class Recording:
             try:
                 with np.load(p, allow_pickle=False) as z:
                     self._truth = {k: z[k] for k in z.files}
-            except (OSError, ValueError) as exc:
-                raise RecordingError(f"{p}: unreadable: {exc}") from None
+            except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+                raise RecordingError(f"{p}: unreadable ({type(exc).__name__}: {exc}); a truncated or "
+                                     f"damaged file?") from None
         return self._truth
 
     def close(self) -> None:

@@ -14,10 +14,13 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from mocap_rt.io.files import atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +128,10 @@ def read_c3d(path: str | Path) -> MarkerData:
         first = int(c3d["header"]["points"]["first_frame"])
     except (KeyError, IndexError, TypeError) as exc:
         raise MarkerFileError(f"{path}: C3D POINT section incomplete ({exc!r})") from exc
+    declared = _c3d_declared_frames(path)
+    if declared is not None and data.shape[2] < declared:
+        raise MarkerFileError(f"{path}: the header declares {declared} frames but {data.shape[2]} could be "
+                              f"read (file cut?)")
     n_points = data.shape[1]
     labels = labels[:n_points] + [f"*{i}" for i in range(len(labels), n_points)]
     if not (math.isfinite(rate) and rate > 0):
@@ -137,6 +144,27 @@ def read_c3d(path: str | Path) -> MarkerData:
     log.debug("%s: %d frames, %d markers, %.1f Hz, %.1f%% missing", path, pos.shape[0],
               pos.shape[1], rate, 100.0 * missing.mean() if missing.size else 0.0)
     return MarkerData(tuple(labels), pos, rate, first, str(path), {"units_in_file": str(units)})
+
+
+def _c3d_declared_frames(path: Path) -> int | None:
+    """The frame count a C3D file's own header declares (words 4-5: first and last frame,
+    1-based), read from the raw bytes: ezc3d shortens its copy of the header to the frames it
+    could read, so a cut file would look whole. None when the header cannot tell (16-bit last
+    frame saturated, or unreadable)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(512)
+            fh.seek(max(head[0] - 1, 0) * 512 + 3)
+            processor = fh.read(1)
+    except OSError:
+        return None
+    if len(head) < 10 or len(processor) < 1:
+        return None
+    order = ">" if processor[0] == 86 else "<"          # 84 Intel, 85 DEC: little-endian; 86 MIPS
+    first, last = struct.unpack(order + "HH", head[6:10])
+    if last == 0xFFFF or last < first:
+        return None
+    return last - first + 1
 
 
 def _dedupe(labels: list[str], path: Path) -> list[str]:
@@ -175,6 +203,8 @@ def read_trc(path: str | Path) -> MarkerData:
         n_markers = int(header["NumMarkers"])
     except ValueError as exc:
         raise MarkerFileError(f"{path}: line 3: bad DataRate/NumMarkers ({exc})") from exc
+    if not (math.isfinite(rate) and rate > 0):
+        raise MarkerFileError(f"{path}: line 3: DataRate must be a positive number, got {header['DataRate']!r}")
     scale = _unit_scale(header["Units"], f"{path}: line 3: Units")
     names_row = lines[3].split("\t")
     if len(names_row) < 2 or names_row[0].strip() != "Frame#":
@@ -202,6 +232,10 @@ def read_trc(path: str | Path) -> MarkerData:
             raise MarkerFileError(f"{path}: line {lineno}: not a number ({exc})") from exc
     if not rows:
         raise MarkerFileError(f"{path}: no data rows")
+    declared = header.get("NumFrames", "").strip()
+    if declared and declared != str(len(rows)):
+        raise MarkerFileError(f"{path}: line 3: NumFrames={declared} but the file has {len(rows)} data rows "
+                              f"(cut or edited?)")
     pos = np.asarray(rows, dtype=np.float64).reshape(len(rows), n_markers, 3) * scale
     pos[np.any(~np.isfinite(pos), axis=2)] = np.nan
     return MarkerData(tuple(_dedupe(labels, path)), pos, rate, frames[0], str(path),
@@ -234,6 +268,4 @@ def write_trc(path: str | Path, data: MarkerData, units: str = "mm") -> None:
     row = "%d\t%.6f\t" + "\t".join(["%.6f"] * (3 * n_markers))
     rows = "\n".join(row % (data.first_frame + f, times[f], *values[f]) for f in range(n_frames))
     out.append(rows.replace("nan", ""))
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(out) + "\n", encoding="utf-8")
-    tmp.replace(path)
+    atomic_write_text(path, "\n".join(out) + "\n")

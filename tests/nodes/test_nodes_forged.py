@@ -7,9 +7,14 @@
 
 After both, the service still publishes >= 98 % of its poses, ``poses_published`` never
 exceeds ``frames_triggered``, and no forged pose is in the BVH or the NPZ.
+
+The same run replays a recording whose camera 3 has a truncated video segment: the frames its
+worker cannot decode are counted as ``decode_drops`` (``--stats`` and the status line).
 """
 
 import dataclasses
+import re
+import shutil
 
 import numpy as np
 import pytest
@@ -36,7 +41,10 @@ def _forged_poses(real: Pose, rig: str) -> list[bytes]:
 
 
 def test_forged_cues_and_poses_do_not_stop_or_enter_the_service(tmp_path, tmp_path_factory, data_dir):
-    walk = small_recording(tmp_path_factory.getbasetemp(), data_dir)
+    walk = tmp_path / "walk"
+    shutil.copytree(small_recording(tmp_path_factory.getbasetemp(), data_dir), walk)
+    seg = walk / "video" / "cam_3" / "seg_000001.avi"          # frames 30..59 of camera 3
+    seg.write_bytes(seg.read_bytes()[: seg.stat().st_size // 2])
     rec = tmp_path / "rec"
     L = Launcher(RunConfig(rig_path=walk / "rig.toml", source=f"replay:{walk}", duration_s=RUN_S,
                            record=rec, status_line=False, log_dir=tmp_path / "logs"))
@@ -68,6 +76,7 @@ def test_forged_cues_and_poses_do_not_stop_or_enter_the_service(tmp_path, tmp_pa
             probe.put(keys.pose, payload)
         while not L.done():
             L.supervise_for(0.2)
+        line = L.status_line()
         probe.close()
     finally:
         L.stop()
@@ -87,3 +96,9 @@ def test_forged_cues_and_poses_do_not_stop_or_enter_the_service(tmp_path, tmp_pa
     assert npz["frames"].max() < FORGED_FRAME0
     assert not np.any(npz["joints"] == FORGED_VALUE) and not np.any(clip.motion == FORGED_VALUE)
     assert clip.motion.shape[0] == len(npz["frames"]) >= MIN_POSE_FRACTION * trig - 2
+    # the truncated segment: counted where it happened, in the stats and on the status line
+    lost = {n: v["decode_drops"] for n, v in stats["nodes"].items() if n.startswith("worker-")}
+    print(f"decode drops: {lost}; status line: {line}")
+    assert lost["worker-cam_3"] > 0 and stats["decode_drops"] >= lost["worker-cam_3"]
+    assert all(v == 0 for n, v in lost.items() if n != "worker-cam_3")
+    assert int(re.search(r"decode drops (\d+)", line).group(1)) > 0
