@@ -290,7 +290,7 @@ def run_speed(n_runs: int) -> None:
         seg_path.write_text(dumps_segments(segs))
         for method in ("patent", "score"):
             times, cpu = _time_cli(["joint-centres", str(trial), "--segments", str(seg_path), "--out", str(out),
-                                    "--method", method], n_runs)
+                                    "--method", method, "--overwrite"], n_runs)
             print(f"  synthetic 1085 frames, method {method:<7} wall median {statistics.median(times):.2f} s "
                   f"(min {min(times):.2f}), CPU median {statistics.median(cpu):.2f} s over {n_runs} runs   "
                   f"target <= 2 s: {'met' if statistics.median(times) <= 2.0 else 'MISSED'}")
@@ -300,8 +300,8 @@ def run_speed(n_runs: int) -> None:
 
         with tempfile.TemporaryDirectory() as tmp:
             times, cpu = _time_cli(["joint-centres", str(real), "--segments",
-                                    str(shipped_segments_path(REAL_TRIALS[0][1])), "--out", str(Path(tmp) / "o.trc")],
-                                   n_runs)
+                                    str(shipped_segments_path(REAL_TRIALS[0][1])), "--out", str(Path(tmp) / "o.trc"),
+                                    "--overwrite"], n_runs)
         print(f"  real {real.name} (1690 frames, 12 joints), method patent: wall median {statistics.median(times):.2f} s"
               f" (min {min(times):.2f}), CPU median {statistics.median(cpu):.2f} s over {n_runs} runs")
 

@@ -28,7 +28,8 @@ import numpy as np
 from mocap_rt.body.humanoid import HumanoidRig, humanoid_pose_from_bvh_row
 from mocap_rt.body.skeleton import BoneLengths, body_model
 from mocap_rt.io.vmc import parse_vmc_target, vmc_bundle
-from nodes.messages import Pose
+from nodes.frame_window import FrameWindow
+from nodes.messages import Pose, Trigger
 from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, setup_logging
 from nodes.transport import direct_callback
 
@@ -82,11 +83,20 @@ def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
     pub_to_send: deque[float] = deque(maxlen=WINDOW)
     lock = threading.Lock()            # the callback appends on Zenoh's thread
 
+    window = FrameWindow(keys.rig, rt.node)     # only poses of triggered frames near the newest
+
     def on_pose(sample) -> None:
         t_recv = time.perf_counter()
         msg = rt.decoder.decode(sample.payload, Pose)
-        if msg is None:
-            return
+        for m in window.accept(msg) if msg is not None else ():
+            send(m, t_recv)
+
+    def on_trigger(sample) -> None:
+        msg = rt.decoder.decode(sample.payload, Trigger)
+        for m in window.accept(msg)[1:] if msg is not None else ():     # poses that waited for it
+            send(m, time.perf_counter())
+
+    def send(msg: Pose, t_recv: float) -> None:
         try:
             ok = sender.send(sender.bundle(msg))
         except ValueError as exc:
@@ -102,11 +112,12 @@ def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
             pub_to_send.append((time.monotonic_ns() - msg.t_pub_mono_ns) / 1e6)
         rt.meter.add(ms)
 
-    sub = session.declare_subscriber(keys.pose, direct_callback(on_pose))
+    subs = [session.declare_subscriber(keys.pose, direct_callback(on_pose)),
+            session.declare_subscriber(keys.trigger, direct_callback(on_trigger))]
     rt.publish_status("running", force=True)
     try:
         while not rt.stop.wait(0.2):
-            rt.extra.update(sent=sender.sent, send_errors=sender.send_errors)
+            rt.extra.update(sent=sender.sent, send_errors=sender.send_errors, **window.counters())
             with lock:
                 a, p = np.array(added), np.array(pub_to_send)
             if a.size:
@@ -114,7 +125,8 @@ def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
                                 pub_to_send_ms_p99=float(np.percentile(p, 99)))
             rt.publish_status()
     finally:
-        sub.undeclare()
+        for sub in subs:
+            sub.undeclare()
         log.info("streamer: %d bundles sent to %s:%d, %d send errors, %d poses dropped",
                  sender.sent, *sender.target, sender.send_errors, rt.drops)
 

@@ -22,7 +22,7 @@ CAMS = ("cam_1", "cam_2", "cam_3")
 MAX_FRAME = 2**63 - 1
 
 # the message types each node role receives (and feeds through its FrameWindow)
-ROLES = {"fusion": (Cues,), "recorder": (Pose,), "camera": (Prediction,), "viewer": (Cues, Pose),
+ROLES = {"fusion": (Cues,), "recorder": (Pose,), "camera": (Prediction,), "viewer": (Cues, Pose), "streamer": (Pose,),
          "monitor": (Pose,)}
 
 
