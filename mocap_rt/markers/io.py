@@ -109,6 +109,7 @@ def read_c3d(path: str | Path) -> MarkerData:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such marker file")
+    declared = _c3d_declared_frames(path)     # before ezc3d: junk can make it abort the process
     try:
         c3d = ezc3d.c3d(str(path))
     except Exception as exc:  # ezc3d raises RuntimeError/IOError for corrupt files
@@ -128,7 +129,6 @@ def read_c3d(path: str | Path) -> MarkerData:
         first = int(c3d["header"]["points"]["first_frame"])
     except (KeyError, IndexError, TypeError) as exc:
         raise MarkerFileError(f"{path}: C3D POINT section incomplete ({exc!r})") from exc
-    declared = _c3d_declared_frames(path)
     if declared is not None and data.shape[2] < declared:
         raise MarkerFileError(f"{path}: the header declares {declared} frames but {data.shape[2]} could be "
                               f"read (file cut?)")
@@ -150,17 +150,17 @@ def _c3d_declared_frames(path: Path) -> int | None:
     """The frame count a C3D file's own header declares (words 4-5: first and last frame,
     1-based), read from the raw bytes: ezc3d shortens its copy of the header to the frames it
     could read, so a cut file would look whole. None when the header cannot tell (16-bit last
-    frame saturated, or unreadable)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(512)
-            fh.seek(max(head[0] - 1, 0) * 512 + 3)
-            processor = fh.read(1)
-    except OSError:
-        return None
-    if len(head) < 10 or len(processor) < 1:
-        return None
-    order = ">" if processor[0] == 86 else "<"          # 84 Intel, 85 DEC: little-endian; 86 MIPS
+    frame saturated). ``MarkerFileError`` when the file has no C3D signature (byte 2 = 0x50, a
+    parameter block with a processor type): ezc3d aborts the whole process on some such files."""
+    with open(path, "rb") as fh:
+        head = fh.read(512)
+        if len(head) < 512 or head[1] != 0x50 or head[0] < 2:
+            raise MarkerFileError(f"{path}: not a C3D file (no C3D header signature)")
+        fh.seek((head[0] - 1) * 512)
+        param = fh.read(4)
+    if len(param) < 4 or param[3] not in (84, 85, 86):
+        raise MarkerFileError(f"{path}: not a C3D file (parameter section missing or cut)")
+    order = ">" if param[3] == 86 else "<"              # 84 Intel, 85 DEC: little-endian; 86 MIPS
     first, last = struct.unpack(order + "HH", head[6:10])
     if last == 0xFFFF or last < first:
         return None
