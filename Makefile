@@ -7,9 +7,15 @@ GST_STAMP := $(VENV)/.installed-gst
 DATA    ?= ../shared/data
 DEMO_DIR ?= out/demo
 
-.PHONY: setup system-deps gst-bindings demo test test-fast bench clean
+.PHONY: setup kernels system-deps gst-bindings demo test test-fast bench clean
 
-setup: $(STAMP) gst-bindings
+# the venv, then every numba kernel compiled once, in one process, into the cache that
+# every node, test and demo loads (mocap_rt/warmup.py: a no-op while the kernel sources
+# are unchanged; the service also checks it before starting its nodes)
+setup: $(STAMP) gst-bindings kernels
+
+kernels: $(STAMP)
+	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m mocap_rt.warmup
 
 # GStreamer (gst: camera sources, docs/sources.md) and what PyGObject builds against.
 GST_DEBS := gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-plugins-bad \
@@ -49,3 +55,4 @@ bench: setup
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
+	find mocap_rt -path "*__pycache__*" \( -name "*.nb[ic]" -o -name "mocap_rt-numba-kernels.*" \) -delete

@@ -1,9 +1,11 @@
 """``make demo``: the full process cluster on a six-camera studio replay, viewed in Rerun.
 
-On the first run a studio recording is rendered from a real CMU clip (6 cameras,
-640x480, 30 fps) into ``OUT/studio_<clip>``; then ``mocap-rt run`` replays it through sync,
-six camera workers, fusion, recorder and viewer (``--rerun save:OUT/demo.rrd``,
-``--record OUT/poses``, ``--stats OUT/stats.json``) and prints how to open the result.
+On the first run a studio recording is rendered from a real CMU walk (6 cameras, 640x480,
+30 fps, 2.9 s) into ``OUT/studio_<clip>`` and kept; then ``mocap-rt run`` replays it
+``--loops`` times (4: ~12 s of motion; the figure is back at the start of its walk at each
+loop) through sync, six camera workers, fusion, recorder and viewer (``--rerun
+save:OUT/demo.rrd``, ``--record OUT/poses``, ``--stats OUT/stats.json``), and prints what
+was measured and how to open the recording and the live web viewer.
 
     python -m nodes.demo --out out/demo --data ../shared/data
 """
@@ -11,14 +13,15 @@ six camera workers, fusion, recorder and viewer (``--rerun save:OUT/demo.rrd``,
 from __future__ import annotations
 
 import argparse
-import json
 import logging
+import os
 import shutil
 import sys
 from pathlib import Path
 
 DEFAULT_CLIP = "bvh/cmu/cmu_02_01_walk.bvh"      # CMU subject 2, trial 1: walk (2.9 s)
 DEFAULT_SIZE = (640, 480)
+DEFAULT_LOOPS = 4
 
 
 def ensure_recording(out: Path, data: Path, clip: str, seconds: float | None) -> Path:
@@ -28,7 +31,7 @@ def ensure_recording(out: Path, data: Path, clip: str, seconds: float | None) ->
     motion = data / clip
     if not motion.is_file():
         raise FileNotFoundError(f"motion clip {motion} not found (is --data the shared data folder?)")
-    rec = out / f"studio_{motion.stem}"
+    rec = out / f"studio_{motion.stem}" if seconds is None else out / f"studio_{motion.stem}_{seconds:g}s"
     if (rec / "recording.toml").is_file():
         return rec
     if rec.exists():             # an interrupted earlier render: start again
@@ -39,15 +42,50 @@ def ensure_recording(out: Path, data: Path, clip: str, seconds: float | None) ->
     return rec
 
 
+def _rel(p: Path) -> str:
+    """``p`` relative to the working directory when below it (shorter commands to copy)."""
+    try:
+        return str(Path(os.path.relpath(p)) if not os.path.relpath(p).startswith("..") else p)
+    except ValueError:
+        return str(p)
+
+
+def summary(stats: dict, rec: Path, out: Path, rrd: Path, poses: Path, stats_path: Path) -> list[str]:
+    """The lines printed at the end: what was measured, where it is, how to look at it."""
+    lat = stats["latency_ms"]
+    trig, n_poses = stats["frames_triggered"], stats["poses_published"]
+    all_cams = n_poses - stats["poses_with_missing_cameras"]
+    pct = (lambda a, b: 100.0 * a / b if b else 0.0)
+    rerun = _rel(Path(sys.executable).with_name("rerun"))
+    mocap = _rel(Path(sys.executable).with_name("mocap-rt"))
+    viewer = stats["nodes"].get("viewer", {})
+    return [
+        f"demo: {trig} frames triggered in {stats['run_s']:.1f} s ({stats['trigger_fps']:.0f} fps), "
+        f"{n_poses} poses ({pct(n_poses, trig):.1f} %), {stats['frames_dropped']} frames without a pose, "
+        f"{all_cams} poses from all {len(stats['cameras'])} cameras ({pct(all_cams, n_poses):.1f} %)",
+        f"demo: latency trigger -> pose p50 {lat['p50']:.1f} ms, p95 {lat['p95']:.1f} ms, "
+        f"p99 {lat['p99']:.1f} ms, max {lat['max']:.1f} ms; node drops {stats['node_drops']} "
+        f"(viewer {viewer.get('drops', 0)}), restarts {sum(n['restarts'] for n in stats['nodes'].values())}",
+        f"demo: poses {_rel(poses)}/poses.bvh (Blender), {_rel(poses)}/poses.npz; statistics {_rel(stats_path)}; "
+        f"node logs {_rel(out / 'logs')}",
+        f"demo: open the recording:   {rerun} {_rel(rrd)}",
+        f"demo: live web viewer:      {mocap} run --source replay:{_rel(rec)} --rerun serve --duration 60",
+        "demo:                        then open http://127.0.0.1:9090 (the exact URL is in the viewer's "
+        "log line 'viewer: open ...'; 127.0.0.1 only: use an SSH tunnel from another machine)",
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=Path("out/demo"))
     p.add_argument("--data", type=Path, default=Path("../shared/data"))
     p.add_argument("--clip", default=DEFAULT_CLIP, help="BVH clip under --data")
     p.add_argument("--seconds", type=float, default=None, help="render only this much of the clip")
-    p.add_argument("--duration", type=float, default=None, help="run time (default: one pass of the replay)")
+    p.add_argument("--loops", type=int, default=DEFAULT_LOOPS, help="passes of the replay (it loops)")
+    p.add_argument("--duration", type=float, default=None, help="run time in s (overrides --loops)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from mocap_rt.io.recording import Recording
     from nodes.launcher import Launcher, RunConfig
 
     out = args.out
@@ -57,20 +95,18 @@ def main(argv: list[str] | None = None) -> int:
     if poses.exists():           # a previous demo's poses: keep them, under a new name
         poses.rename(out / f"poses.previous.{int(poses.stat().st_mtime)}")
     rrd.unlink(missing_ok=True)
-    cfg = RunConfig(rig_path=rec / "rig.toml", source=f"replay:{rec}", duration_s=args.duration,
+    replay = Recording(rec)
+    duration = args.duration if args.duration is not None else args.loops * replay.n_frames / replay.fps
+    cfg = RunConfig(rig_path=rec / "rig.toml", source=f"replay:{rec}", duration_s=duration,
                     rerun=f"save:{rrd}", record=poses, stats=stats_path, log_dir=out / "logs")
     launcher = Launcher(cfg)
-    print(f"demo: replaying {rec} through {len(launcher.nodes)} processes "
-          f"(sync, {len(launcher.rig)} camera workers, fusion, recorder, viewer) ...", flush=True)
+    print(f"demo: replaying {rec} ({replay.n_frames / replay.fps:.1f} s, {duration:.1f} s of motion) through "
+          f"{len(launcher.nodes)} processes (sync, {len(launcher.rig)} camera workers, fusion, recorder, "
+          f"viewer) ...", flush=True)
     stats = launcher.run()
-    lat = stats["latency_ms"]
     print()
-    print(f"frames triggered {stats['frames_triggered']}, poses {stats['poses_published']}, "
-          f"dropped {stats['frames_dropped']}; latency trigger->pose p50 {lat['p50']:.1f} ms, "
-          f"p95 {lat['p95']:.1f} ms, p99 {lat['p99']:.1f} ms")
-    print("CPU seconds per node: " + json.dumps(stats["cpu_s"]))
-    print(f"poses: {poses}/poses.bvh, {poses}/poses.npz; statistics: {stats_path}; node logs: {out / 'logs'}")
-    print(f"open the figure with:  .venv/bin/rerun {rrd}")
+    for line in summary(stats, rec, out, rrd, poses, stats_path):
+        print(line)
     return 0 if stats["poses_published"] > 0 else 1
 
 

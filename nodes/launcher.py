@@ -13,14 +13,11 @@ sends SIGTERM to the rest (SIGKILL after ``STOP_TIMEOUT_S``).
 
 from __future__ import annotations
 
-import ctypes
 import json
 import logging
 import math
 import os
-import random
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -31,12 +28,13 @@ from pathlib import Path
 from nodes.frame_window import window_drops
 from nodes.messages import Keys
 from nodes.monitor import ServiceMonitor, percentiles
+from nodes.procs import _child_setup, _ephemeral_range, ensure_kernels_warm, free_port, kill_group, renice  # noqa: F401
 from nodes.sources import parse_source
 from nodes.transport import make_config, zenoh_argv
 
 log = logging.getLogger(__name__)
 
-STARTUP_TIMEOUT_S = 180.0      # first start compiles numba kernels; later starts use the cache
+STARTUP_TIMEOUT_S = 180.0      # the nodes only load the kernel cache (built before they start)
 STOP_TIMEOUT_S = 5.0
 DRAIN_S = 0.5                  # after the last trigger, wait this long for its pose
 RESTART_LIMIT = 10
@@ -44,6 +42,7 @@ POLL_S = 0.05
 STATUS_LINE_PERIOD_S = 1.0
 DEFAULT_PREVIEW_EVERY = 3      # with a viewer: one JPEG per camera every 3 frames
 REALTIME_ROLES = ("sync", "camera", "fusion")   # the trigger -> pose path: ``nice`` and FIFO
+BACKGROUND_NICE = {"viewer": 10, "recorder": 5, "spare": 15}   # off the frame path: what is left
 DEFAULT_RT_PRIORITY = 10       # SCHED_FIFO priority of the workers (fusion 11, sync 12)
 RT_PRIORITY_OFFSET = {"camera": 0, "fusion": 1, "sync": 2}
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
@@ -77,68 +76,6 @@ class RunConfig:
     stream: str | None = None          # pose stream, e.g. "vmc:127.0.0.1:39539" (nodes/streamer.py)
     allow_remote_stream: bool = False  # let the stream leave this host
     backgrounds_from: Path | None = None   # gst: sources: a recording's stored backgrounds
-
-
-PORT_RANGE = (20000, 32000)    # listen ports are drawn here, below the kernel's ephemeral range
-
-
-def _ephemeral_range() -> tuple[int, int]:
-    try:
-        lo, hi = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
-        return int(lo), int(hi)
-    except (OSError, ValueError):
-        return 32768, 60999
-
-
-_rng = random.Random()
-_handed_out: set[int] = set()   # never the same port twice: the nodes of one service bind later
-
-
-def free_port() -> int:
-    """A loopback TCP port that is free now, outside the ephemeral range (so that no outgoing
-    connection of another process can take it before our node binds it) and not handed out
-    before by this process (the ports of one service are all drawn before any node binds)."""
-    lo_e, hi_e = _ephemeral_range()
-    for _ in range(1000):
-        port = _rng.randrange(*PORT_RANGE)
-        if lo_e <= port <= hi_e or port in _handed_out:
-            continue
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            _handed_out.add(port)
-            return port
-    raise RuntimeError("no free TCP port found for the service")
-
-
-def _child_setup(nice: int):
-    """preexec_fn: the child gets SIGTERM if the launcher dies (Linux prctl PR_SET_PDEATHSIG)
-    and, if asked, a scheduling priority (negative ``nice`` needs root or CAP_SYS_NICE).
-
-    Every node is started in its own session (``start_new_session``), and with the kernel's
-    autogroup scheduling (``/proc/sys/kernel/sched_autogroup_enabled``, on in most distros) a
-    new session is a new scheduling group: CPU is shared between the *groups* first, and a
-    process's own niceness only counts inside its group. So the niceness is also given to the
-    node's autogroup (``/proc/self/autogroup``), else it would have no effect against other
-    work on the host."""
-    def setup() -> None:
-        try:
-            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
-        except OSError:
-            pass
-        if nice:
-            try:
-                os.nice(nice)
-            except OSError:
-                pass      # not permitted: run at the normal priority
-            try:
-                with open("/proc/self/autogroup", "w") as f:
-                    f.write(str(nice))
-            except OSError:
-                pass      # no autogroups, or not permitted
-    return setup
 
 
 def _json_safe(x):
@@ -299,15 +236,21 @@ class Launcher:
             self.nodes[name] = NodeProc(name, role, argv + common + ["--node", name] + z + extra, ports[name])
 
     # ------------------------------------------------------------ processes
-    def _popen(self, argv: list[str], role: str, log_name: str, stdin=subprocess.DEVNULL) -> subprocess.Popen:
-        logf = open(self.log_path(log_name), "ab")
+    def _env(self) -> dict:
         # one compute thread per node: the nodes already run in parallel, and library thread
         # pools in each of them (OpenCV, numba, BLAS) would only oversubscribe the cores
-        env = dict(os.environ, PYTHONUNBUFFERED="1", **SINGLE_THREAD_ENV)
+        return dict(os.environ, PYTHONUNBUFFERED="1", **SINGLE_THREAD_ENV)
+
+    def _nice(self, role: str) -> int:
+        """The frame path gets ``--nice``; viewer, recorder and the hot spare run below it."""
+        return self.cfg.nice if role in REALTIME_ROLES else BACKGROUND_NICE.get(role, 0)
+
+    def _popen(self, argv: list[str], role: str, log_name: str, stdin=subprocess.DEVNULL) -> subprocess.Popen:
+        logf = open(self.log_path(log_name), "ab")
         try:
             return subprocess.Popen([sys.executable] + argv, stdout=logf, stderr=subprocess.STDOUT,
-                                    stdin=stdin, env=env, start_new_session=True,
-                                    preexec_fn=_child_setup(self.cfg.nice if role in REALTIME_ROLES else 0))
+                                    stdin=stdin, env=self._env(), start_new_session=True,
+                                    preexec_fn=_child_setup(self._nice(role)))
         finally:
             logf.close()
 
@@ -317,10 +260,11 @@ class Launcher:
         log.debug("started %s pid %d", node.name, node.proc.pid)
 
     def _spawn_spare(self) -> None:
-        """Start the hot spare: a camera worker that warms up on the first camera and waits."""
+        """Start the hot spare: a camera worker that warms up on the first camera and waits,
+        at a low priority (``BACKGROUND_NICE``) until it takes over."""
         first = next((n for n in self.nodes.values() if n.role == "camera"), None)
         if first is not None and self.cfg.restart:
-            self.spare = self._popen(first.argv + ["--standby"], "camera", "spare", stdin=subprocess.PIPE)
+            self.spare = self._popen(first.argv + ["--standby"], "spare", "spare", stdin=subprocess.PIPE)
 
     def _take_over(self, node: NodeProc) -> bool:
         """Hand ``node``'s flags to the hot spare; False if there is none (or it is gone)."""
@@ -332,6 +276,8 @@ class Launcher:
             self._spawn_spare()
             return False
         job = {"argv": node.argv[2:], "log": str(self.log_path(node.name))}    # after "-m module"
+        if not renice(spare.pid, self._nice(node.role)):
+            log.warning("the hot spare's priority could not be raised to nice %d", self._nice(node.role))
         try:
             spare.stdin.write((json.dumps(job) + "\n").encode())
             spare.stdin.close()
@@ -358,6 +304,7 @@ class Launcher:
         except subprocess.TimeoutExpired:
             spare.kill()
             spare.wait()
+        kill_group(spare.pid)
 
     def log_path(self, name: str) -> Path:
         return self.log_dir / f"{name}.log"
@@ -399,6 +346,7 @@ class Launcher:
                 continue
             n.cpu_done_s += n.cpu_last_s
             n.cpu_last_s = 0.0
+            kill_group(n.proc.pid)       # what the dead node started (the viewer's web server)
             if not self.cfg.restart or n.restarts >= RESTART_LIMIT:
                 n.finished = True
                 log.error("%s exited with %s; not restarted (see %s)%s", n.name, rc, self.log_path(n.name),
@@ -413,15 +361,20 @@ class Launcher:
 
     # ------------------------------------------------------------ run phases
     def start(self) -> None:
-        """Open the monitor session, start every node but sync, wait until they are ready."""
+        """Build the kernel cache if cold (one process), open the monitor session, start every
+        node but sync, wait until they are ready (kernels loaded, a warm-up frame run), then
+        the hot spare and the sync: the trigger never starts into a cold cluster."""
         import zenoh
 
+        kind, value = parse_source(self.cfg.source)
+        rec = Path(value) if kind in ("replay", "fake") else None
+        if not ensure_kernels_warm(self.log_path("warmup"), self._env(), rec, lambda: self.stopping):
+            return
         self.session = zenoh.open(make_config([f"tcp/127.0.0.1:{self.monitor_port}"], []))
         self.monitor = ServiceMonitor(self.session, self.keys)
         for n in self.nodes.values():
             if n.role != "sync":
                 self._spawn(n)
-        self._spawn_spare()
         waiting = [n.name for n in self.nodes.values() if n.role != "sync"]
         t_end = time.monotonic() + STARTUP_TIMEOUT_S
         while waiting:
@@ -441,6 +394,7 @@ class Launcher:
             time.sleep(POLL_S)
         self._sample_cpu()
         self._cpu_at_start = {n.name: n.cpu_s for n in self.nodes.values()}   # start-up excluded
+        self._spawn_spare()
         self._spawn(self.nodes["sync"])
         self.t_sync_start = time.monotonic()
 
@@ -521,6 +475,7 @@ class Launcher:
                 log.warning("%s did not stop in %.0f s: killing it", n.name, STOP_TIMEOUT_S)
                 n.proc.kill()
                 n.proc.wait()
+            kill_group(n.proc.pid)       # anything the node left behind
 
     def stop(self) -> None:
         """Stop sync, let the last poses arrive, then stop the others (viewer/recorder last)."""
@@ -536,6 +491,10 @@ class Launcher:
         self._sample_cpu()
         order = [n for n, p in self.nodes.items() if p.role in ("camera", "fusion")]
         self._terminate(order)
+        # the frame path is done: viewer and recorder may now use the whole machine to finish
+        for n in self.nodes.values():
+            if n.role in BACKGROUND_NICE and n.proc is not None and n.proc.poll() is None:
+                renice(n.proc.pid, self.cfg.nice)
         self._terminate([n for n, p in self.nodes.items() if p.role in ("recorder", "viewer", "streamer")])
         self._stop_spare()
         if self.session is not None:

@@ -4,11 +4,17 @@ Entity layout (world: right-handed, Z up, metres)::
 
     world/cameras/<cam>              Transform3D (camera -> world) + Pinhole (OpenCV RDF)
     world/cameras/<cam>/image        the camera's JPEG preview (every ``--preview-every``)
-    world/cameras/<cam>/image/cues   2D cue points + 2-sigma ellipses of the blobs
+    world/cameras/<cam>/image/cues   2D cue points + 2-sigma ellipses of the blobs, of the
+                                     image's own frame (logged together with the image)
     world/skeleton                   3D bones (line strips) and joints
     world/cues                       triangulated cue points
     plots/latency_ms                 trigger -> pose published, per frame
     plots/cameras_used               number of cameras fused per frame
+    viewer                           text: what the viewer shows and what it left out
+
+The viewer works on what the frame path leaves (the launcher runs it niced): it shows the
+images the workers send (one per ``--preview-every`` frames), drops the oldest items when it
+falls behind, and says so in its log, its status (``extra``) and the ``viewer`` text entity.
 
 ``--rerun save:FILE.rrd`` writes a file; ``serve[:WEB_PORT[:GRPC_PORT]]`` keeps a gRPC
 server bound to 127.0.0.1 and hosts the web viewer on 127.0.0.1 (``rerun --serve-web
@@ -21,7 +27,8 @@ from __future__ import annotations
 
 import logging
 import os
-import queue
+import threading
+from collections import deque
 import shutil
 import subprocess
 import sys
@@ -32,6 +39,7 @@ import numpy as np
 
 from nodes.frame_window import FrameWindow
 from nodes.messages import Cues, Keys, Pose, Preview, Trigger
+from nodes.procs import die_with_parent
 from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, setup_logging
 
 log = logging.getLogger(__name__)
@@ -39,6 +47,9 @@ log = logging.getLogger(__name__)
 DEFAULT_WEB_PORT = 9090
 DEFAULT_GRPC_PORT = 9876
 QUEUE_MAX = 256                 # items waiting to be logged; beyond that the oldest are dropped
+DRAIN_S = 3.0                   # at stop: log what is still queued for at most this long
+PAIR_FRAMES_KEPT = 32           # cues / images waiting for their partner, per camera
+REPORT_PERIOD_S = 10.0          # how often the viewer writes what it did into the recording
 ELLIPSE_SIGMA = 2.0             # cue ellipses drawn at 2 standard deviations
 ELLIPSE_POINTS = 24
 CUE_COLOURS = np.array([[255, 220, 0], [255, 60, 60], [60, 160, 255], [255, 120, 0], [0, 200, 255],
@@ -89,6 +100,45 @@ def skeleton_strips(joints: np.ndarray) -> list[np.ndarray]:
         if ok.all():
             out.append(pts)
     return out
+
+
+class SameFrame:
+    """Pairs each camera's preview image with the cues of the same frame, so a camera panel
+    never shows ellipses over an image of another frame.
+
+    ``add_cues`` / ``add_preview`` return the (cues, preview) pair once both halves of a
+    frame are there; a camera that never sent an image gets its cues back at once (no image
+    to disagree with). Unpaired halves older than ``PAIR_FRAMES_KEPT`` frames are forgotten.
+    """
+
+    def __init__(self, keep: int = PAIR_FRAMES_KEPT) -> None:
+        self.keep = keep
+        self._cues: dict[str, dict[int, Cues]] = {}
+        self._images: dict[str, dict[int, Preview]] = {}
+
+    def _store(self, table: dict, camera: str, frame: int, msg) -> None:
+        d = table.setdefault(camera, {})
+        d[frame] = msg
+        for f in [f for f in d if f <= frame - self.keep]:
+            del d[f]
+
+    def add_cues(self, msg: Cues) -> tuple[Cues, Preview | None] | None:
+        cam, frame = msg.cues.camera, msg.cues.frame
+        if cam not in self._images:
+            return msg, None
+        img = self._images[cam].pop(frame, None)
+        if img is None:
+            self._store(self._cues, cam, frame, msg)
+            return None
+        return msg, img
+
+    def add_preview(self, msg: Preview) -> tuple[Cues, Preview] | None:
+        self._images.setdefault(msg.camera, {})
+        cues = self._cues.get(msg.camera, {}).pop(msg.frame, None)
+        if cues is None:
+            self._store(self._images, msg.camera, msg.frame, msg)
+            return None
+        return cues, msg
 
 
 class RerunLogger:
@@ -156,6 +206,17 @@ class RerunLogger:
         rr.set_time("frame", sequence=msg.frame)
         rr.log(f"world/cameras/{msg.camera}/image", rr.EncodedImage(contents=msg.jpeg, media_type="image/jpeg"))
 
+    def log_pair(self, pair: tuple[Cues, Preview | None]) -> None:
+        """A camera's cues, and its image of the same frame if there is one."""
+        cues, image = pair
+        if image is not None:
+            self.log_preview(image)
+        self.log_cues(cues)
+
+    def log_note(self, text: str) -> None:
+        """A line of text in the recording (entity ``viewer``), at the current time."""
+        self.rr.log("viewer", self.rr.TextLog(text))
+
 
 def start_sink(spec: str, app_id: str = "mocap_rt") -> subprocess.Popen | None:
     """Initialise Rerun for ``--rerun spec``; returns the web-viewer process for ``serve``."""
@@ -183,8 +244,10 @@ def start_sink(spec: str, app_id: str = "mocap_rt") -> subprocess.Popen | None:
     exe = shutil.which("rerun", path=str(Path(sys.executable).parent)) or shutil.which("rerun")
     if exe is None:
         raise FileNotFoundError("the 'rerun' executable (from rerun-sdk) is needed to host the web viewer")
+    # dies with the viewer, whatever ends it (the launcher also kills the viewer's process group)
     proc = subprocess.Popen([exe, "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web), url],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+                            preexec_fn=die_with_parent)
     log.info("viewer: open %s", web_viewer_url(web, grpc))
     return proc
 
@@ -195,24 +258,96 @@ def web_viewer_url(web_port: int, grpc_port: int) -> str:
     return f"http://127.0.0.1:{web_port}/?url={quote(f'rerun+http://127.0.0.1:{grpc_port}/proxy', safe='')}"
 
 
+class Inbox:
+    """Items waiting to be logged, filled by Zenoh's threads: at most ``maxlen``; when full,
+    ``put`` drops the oldest for the newest (and says so)."""
+
+    def __init__(self, maxlen: int) -> None:
+        self._items: deque = deque(maxlen=maxlen)
+        self._cond = threading.Condition()
+
+    def put(self, item) -> bool:
+        """Queue ``item``; True if the oldest item was dropped to make room."""
+        with self._cond:
+            full = len(self._items) == self._items.maxlen
+            self._items.append(item)
+            self._cond.notify()
+            return full
+
+    def get(self, timeout_s: float):
+        """The oldest item, waiting up to ``timeout_s``; None if there is none."""
+        with self._cond:
+            if not self._items and timeout_s > 0:
+                self._cond.wait(timeout_s)
+            return self._items.popleft() if self._items else None
+
+
+class ViewerReport:
+    """What the viewer shows and what it leaves out, in its log, its status and the recording
+    (``viewer`` text entity): images per second, image size, items dropped, niceness."""
+
+    def __init__(self, logger: RerunLogger, rt: NodeRuntime) -> None:
+        self.logger, self.rt = logger, rt
+        self.t0 = time.monotonic()
+        self.t_last = self.t0
+        self.poses = self.images = self.image_bytes = 0
+        self.size = ""
+
+    def pose(self, pose: Pose) -> None:
+        self.poses += 1
+        if time.monotonic() - self.t_last >= REPORT_PERIOD_S:
+            self.write()
+
+    def item(self, msg, pair) -> None:
+        if isinstance(msg, Preview):
+            self.images += 1
+            self.image_bytes += len(msg.jpeg)
+            if not self.size:
+                self.size = _jpeg_size(msg.jpeg)
+
+    def write(self, final: bool = False) -> None:
+        now = time.monotonic()
+        self.t_last = now
+        dt = max(now - self.t0, 1e-3)
+        text = (f"viewer{' (end)' if final else ''}: {self.poses} poses, {self.images} camera images "
+                f"({self.images / dt:.1f}/s over all cameras, {self.size or 'no images'} JPEG, "
+                f"{self.image_bytes / max(self.images, 1) / 1e3:.0f} kB each); {self.rt.drops} items dropped "
+                f"because the viewer fell behind; niceness {os.getpriority(os.PRIO_PROCESS, 0)} "
+                f"(the viewer gets what the frame path leaves); each camera image is shown with the cues "
+                f"of its own frame")
+        self.rt.extra.update(images_per_s=round(self.images / dt, 2), viewer_dropped=self.rt.drops)
+        log.info("%s", text)
+        try:
+            self.logger.log_note(text)
+        except Exception as exc:  # a note is a nicety
+            log.warning("viewer: note not logged: %s", exc)
+
+
+def _jpeg_size(jpeg: bytes) -> str:
+    """'WxH' of a JPEG from its SOF marker ('' if not found)."""
+    i = 2
+    while i + 9 < len(jpeg):
+        if jpeg[i] != 0xFF:
+            return ""
+        marker, length = jpeg[i + 1], int.from_bytes(jpeg[i + 2:i + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            h, w = int.from_bytes(jpeg[i + 5:i + 7], "big"), int.from_bytes(jpeg[i + 7:i + 9], "big")
+            return f"{w}x{h}"
+        i += 2 + length
+    return ""
+
+
 def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
     """Log everything that arrives until ``rt.stop`` (off the Zenoh threads)."""
     import rerun as rr
 
     logger = RerunLogger(rig)
     logger.log_static()
-    inbox: queue.Queue = queue.Queue(maxsize=QUEUE_MAX)
+    inbox = Inbox(QUEUE_MAX)
 
     def enqueue(item) -> None:
-        try:
-            inbox.put_nowait(item)
-        except queue.Full:       # behind: drop the oldest, keep the newest
-            try:
-                inbox.get_nowait()
-            except queue.Empty:
-                pass
+        if inbox.put(item):      # behind: the oldest item was dropped for the newest
             rt.drops += 1
-            inbox.put_nowait(item)
 
     window = FrameWindow(keys.rig, rt.node)     # only poses and cues of triggered frames
 
@@ -229,12 +364,20 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
             session.declare_subscriber(keys.cues(), handler(Cues)),
             session.declare_subscriber(keys.preview(), handler(Preview))]
     rt.publish_status("running", force=True)
+    report = ViewerReport(logger, rt)
+    pairs = SameFrame()
     n = 0
+    t_drain = None
     try:
-        while not rt.stop.is_set():
-            try:
-                msg = inbox.get(timeout=0.2)
-            except queue.Empty:
+        while True:
+            if rt.stop.is_set() and t_drain is None:      # stopping: log what is queued, briefly
+                t_drain = time.monotonic() + DRAIN_S
+            if t_drain is not None and time.monotonic() > t_drain:
+                break
+            msg = inbox.get(timeout_s=0.2 if t_drain is None else 0.0)
+            if msg is None:
+                if t_drain is not None:
+                    break
                 rt.extra.update(window.counters())
                 rt.publish_status()
                 continue
@@ -243,16 +386,19 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
                 if isinstance(msg, Pose):
                     logger.log_pose(msg)
                     rt.meter.add((time.perf_counter() - t0) * 1e3)
-                elif isinstance(msg, Cues):
-                    logger.log_cues(msg)
+                    report.pose(msg)
                 else:
-                    logger.log_preview(msg)
+                    pair = pairs.add_cues(msg) if isinstance(msg, Cues) else pairs.add_preview(msg)
+                    report.item(msg, pair)
+                    if pair is not None:
+                        logger.log_pair(pair)
             except Exception as exc:  # visualisation must never stop the service
                 n += 1
                 if n <= 5:
                     log.warning("viewer: could not log %s: %s", type(msg).__name__, exc)
             rt.extra.update(window.counters())
             rt.publish_status()
+        report.write(final=True)
     finally:
         for s in subs:
             s.undeclare()
