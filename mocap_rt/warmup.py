@@ -109,12 +109,15 @@ def _locked():
             fcntl.flock(f, fcntl.LOCK_UN)
 
 
-def cached_dispatchers() -> list:
-    """Every ``cache=True`` numba dispatcher of the package (imports the kernel modules)."""
+def cached_dispatchers(packages: tuple[str, ...] = ("mocap_rt",)) -> list:
+    """Every ``cache=True`` numba dispatcher of the modules under ``packages`` (imports
+    those kernel modules)."""
     from numba.core.dispatcher import Dispatcher
 
     out, seen = [], set()
     for path in kernel_sources():
+        if not _module_name(path).startswith(packages):
+            continue
         mod = importlib.import_module(_module_name(path))
         for obj in vars(mod).values():
             if isinstance(obj, Dispatcher) and getattr(obj, "_cache", None) is not None \
@@ -136,6 +139,29 @@ def _compiled(dispatchers) -> tuple[int, int]:
     misses = sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
     hits = sum(sum(d.stats.cache_hits.values()) for d in dispatchers)
     return misses, hits
+
+
+SERVICE_PACKAGES = ("mocap_rt.perception", "mocap_rt.body", "mocap_rt.geometry", "mocap_rt.fusion")
+
+
+def load_cached_kernels(packages: tuple[str, ...] = SERVICE_PACKAGES) -> tuple[int, float]:
+    """Load every signature the cache holds for the kernels of ``packages`` now, instead of
+    at each kernel's first call (a frame that first takes a new code path, e.g. the first
+    with a prediction, would otherwise wait for the load). Never compiles: only entries whose
+    index key matches this machine and this bytecode are loaded. Returns (loaded, seconds)."""
+    t0 = time.perf_counter()
+    n = 0
+    for d in cached_dispatchers(packages):
+        try:
+            codegen = d.targetctx.codegen()
+            for key in list(d._cache._cache_file._load_index()):
+                sig = key[0]
+                if d._cache._index_key(sig, codegen) == key:
+                    d.compile(sig)
+                    n += 1
+        except Exception:  # numba internals changed: the kernels load at their first call
+            continue
+    return n, time.perf_counter() - t0
 
 
 def default_motion() -> Path | None:

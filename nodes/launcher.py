@@ -40,9 +40,10 @@ DRAIN_S = 0.5                  # after the last trigger, wait this long for its 
 RESTART_LIMIT = 10
 POLL_S = 0.05
 STATUS_LINE_PERIOD_S = 1.0
-DEFAULT_PREVIEW_EVERY = 3      # with a viewer: one JPEG per camera every 3 frames
+DEFAULT_PREVIEW_EVERY = 6      # with a viewer: one JPEG per camera every 6 frames (5 per s at 30 fps)
 REALTIME_ROLES = ("sync", "camera", "fusion")   # the trigger -> pose path: ``nice`` and FIFO
-BACKGROUND_NICE = {"viewer": 10, "recorder": 5, "spare": 15}   # off the frame path: what is left
+BACKGROUND_NICE = 10           # viewer, recorder (when the frame path is not real-time), hot spare
+BACKGROUND_ROLES = ("viewer", "recorder", "spare")
 DEFAULT_RT_PRIORITY = 10       # SCHED_FIFO priority of the workers (fusion 11, sync 12)
 RT_PRIORITY_OFFSET = {"camera": 0, "fusion": 1, "sync": 2}
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
@@ -125,6 +126,7 @@ class Launcher:
         self.keys = Keys(self.rig_name)
         self.base_fps = cfg.fps or self._source_fps(kind, value)
         self.trigger_fps = 0.0 if cfg.speed is None else self.base_fps * cfg.speed
+        self.realtime = False              # the frame path will run SCHED_FIFO (set by _rt_priority)
         self.rt_priority = self._rt_priority()
         self.n_replay_frames = self._replay_frames(kind, value)
         self.log_dir = Path(cfg.log_dir or tempfile.mkdtemp(prefix="mocap-rt-logs-"))
@@ -159,6 +161,9 @@ class Launcher:
         if os.geteuid() != 0 and resource.getrlimit(resource.RLIMIT_RTPRIO)[0] < top:
             log.info("real-time scheduling not permitted (needs root, CAP_SYS_NICE or RLIMIT_RTPRIO >= %d): "
                      "the nodes run at the normal priority", top)
+            self.realtime = False
+        else:
+            self.realtime = True
         return want
 
     def _source_fps(self, kind: str, value: str) -> float:
@@ -242,8 +247,14 @@ class Launcher:
         return dict(os.environ, PYTHONUNBUFFERED="1", **SINGLE_THREAD_ENV)
 
     def _nice(self, role: str) -> int:
-        """The frame path gets ``--nice``; viewer, recorder and the hot spare run below it."""
-        return self.cfg.nice if role in REALTIME_ROLES else BACKGROUND_NICE.get(role, 0)
+        """The frame path gets ``--nice``; the hot spare runs below it. Viewer and recorder
+        too when the frame path is not real-time; when it is, it preempts them anyway (they
+        get what it leaves), and a niceness would only hand them to the host's other work."""
+        if role in REALTIME_ROLES:
+            return self.cfg.nice
+        if role == "spare" or (role in BACKGROUND_ROLES and not self.realtime):
+            return BACKGROUND_NICE
+        return 0
 
     def _popen(self, argv: list[str], role: str, log_name: str, stdin=subprocess.DEVNULL) -> subprocess.Popen:
         logf = open(self.log_path(log_name), "ab")
@@ -407,12 +418,21 @@ class Launcher:
             time.sleep(POLL_S)
 
     def done(self) -> bool:
-        """True once the run should end (duration passed or the replay was played once)."""
+        """True once the run should end (``duration_s`` after the first trigger, or the replay
+        was played once)."""
         if self.t_sync_start is None:
             return self.stopping
-        if self.cfg.duration_s is not None and time.monotonic() - self.t_sync_start >= self.cfg.duration_s:
+        if self.nodes["sync"].finished or self.stopping:
             return True
-        return self.nodes["sync"].finished or self.stopping
+        if self.cfg.duration_s is None:
+            return False
+        t0_ns = self.monitor.first_trigger_ns()       # the duration counts from the first trigger
+        if t0_ns is None:
+            if time.monotonic() - self.t_sync_start > STARTUP_TIMEOUT_S:
+                raise RuntimeError(f"the sync node sent no trigger in {STARTUP_TIMEOUT_S:.0f} s"
+                                   f"{self.log_tail('sync')}")
+            return False
+        return time.monotonic_ns() - t0_ns >= self.cfg.duration_s * 1e9
 
     def status_line(self) -> str:
         m = self.monitor
@@ -493,7 +513,8 @@ class Launcher:
         self._terminate(order)
         # the frame path is done: viewer and recorder may now use the whole machine to finish
         for n in self.nodes.values():
-            if n.role in BACKGROUND_NICE and n.proc is not None and n.proc.poll() is None:
+            if n.role in BACKGROUND_ROLES and self._nice(n.role) > self.cfg.nice and n.proc is not None \
+                    and n.proc.poll() is None:
                 renice(n.proc.pid, self.cfg.nice)
         self._terminate([n for n, p in self.nodes.items() if p.role in ("recorder", "viewer", "streamer")])
         self._stop_spare()

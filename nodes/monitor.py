@@ -106,6 +106,11 @@ class ServiceMonitor:
         with self._lock:
             return [p for p in self.poses if p.t_recv_ns >= t_ns]
 
+    def first_trigger_ns(self) -> int | None:
+        """Monotonic ns of the first trigger seen (None before it)."""
+        with self._lock:
+            return min(self.triggers.values(), default=None)
+
     def counts(self) -> tuple[int, int, int]:
         """(frames triggered, poses published, triggered frames without a pose)."""
         with self._lock:

@@ -11,6 +11,7 @@ import argparse
 import gc
 import logging
 import os
+import random
 import re
 import signal
 import statistics
@@ -107,17 +108,42 @@ def node_session(args: argparse.Namespace, role: str, node: str | None = None):
     with open_session(args) as session:
         rt = NodeRuntime(session, Keys(args.rig_name), node or args.node, role)
         rt.install_signal_handlers()
+        if role in KERNEL_ROLES:
+            rt.publish_status("starting", force=True)
+            load_kernels(rt)
         yield rt
 
 
+KERNEL_ROLES = ("camera", "fusion")     # nodes that run numba kernels on the frame path
+
+
+def load_kernels(rt: NodeRuntime) -> None:
+    """Load the frame path's cached numba kernels now (``mocap_rt.warmup.load_cached_kernels``),
+    before the node's warm-up frame and its *ready*: no frame waits for a kernel load."""
+    from mocap_rt.warmup import is_warm, load_cached_kernels
+
+    if not is_warm():
+        log.warning("%s: the numba kernel cache is cold (run `python -m mocap_rt.warmup`); "
+                    "this node compiles what it needs during its warm-up", rt.node)
+    n, secs = load_cached_kernels()
+    rt.extra["kernels_loaded"] = n
+    log.info("%s: %d cached kernel signatures loaded in %.2f s", rt.node, n, secs)
+
+
+DEFERRED_RT_PRIORITY = 1     # SCHED_FIFO priority of a real-time node's deferred work
+
+
 class ThreadPriority:
-    """Switch the calling thread between its real-time policy and normal scheduling.
+    """Switch the calling thread between its real-time priority and the lowest one.
 
     A real-time worker does its deferred work (decoding the next replay image, preview JPEG,
-    raw frames) at normal priority: that work is off the critical path, and keeping it out of
-    the real-time class leaves the kernel's real-time budget (95 % of the CPUs) to the
-    critical path at high frame rates. Only this thread switches (a syscall, microseconds);
-    Zenoh's threads stay real-time. Does nothing when the thread is not real-time.
+    raw frames) at ``DEFERRED_RT_PRIORITY``: below every thread of the frame path (workers
+    10, fusion 11, sync 12), so it never delays another camera's frame, but still above
+    ordinary work on the host. (At normal priority, a loaded host, e.g. a viewer or other
+    jobs, starved it: the next image was not decoded when its trigger came, and the frame
+    waited for it: 58 % instead of 97 % of the demo's poses had all six cameras.) Only this
+    thread switches (a syscall, microseconds); Zenoh's threads keep their priority. Does
+    nothing when the thread is not real-time.
     """
 
     def __init__(self) -> None:
@@ -130,12 +156,13 @@ class ThreadPriority:
         self.realtime = self._rt_param is not None
 
     def normal(self) -> None:
+        """Down to ``DEFERRED_RT_PRIORITY`` (the name is from when this was SCHED_OTHER)."""
         if self._rt_param is not None and self.realtime:
             try:
-                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(DEFERRED_RT_PRIORITY))
                 self.realtime = False
             except OSError as exc:
-                log.debug("normal scheduling not set: %s", exc)
+                log.debug("deferred priority not set: %s", exc)
 
     def realtime_again(self) -> None:
         if self._rt_param is not None and not self.realtime:
@@ -258,7 +285,9 @@ class IdleGC:
         gc.collect()
         gc.freeze()
         gc.disable()
-        self._last_full = time.monotonic()
+        # a random phase: nodes started together must not all collect in the same frame
+        # (six workers' full collections at once delayed a demo frame by 60 ms)
+        self._last_full = time.monotonic() - random.uniform(0.0, self.FULL_EVERY_S / 2)
 
     def idle(self) -> None:
         now = time.monotonic()

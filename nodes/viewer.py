@@ -313,8 +313,8 @@ class ViewerReport:
                 f"({self.images / dt:.1f}/s over all cameras, {self.size or 'no images'} JPEG, "
                 f"{self.image_bytes / max(self.images, 1) / 1e3:.0f} kB each); {self.rt.drops} items dropped "
                 f"because the viewer fell behind; niceness {os.getpriority(os.PRIO_PROCESS, 0)} "
-                f"(the viewer gets what the frame path leaves); each camera image is shown with the cues "
-                f"of its own frame")
+                f"(the frame path comes first: real-time scheduling above the viewer, or this niceness); "
+                f"each camera image is shown with the cues of its own frame")
         self.rt.extra.update(images_per_s=round(self.images / dt, 2), viewer_dropped=self.rt.drops)
         log.info("%s", text)
         try:

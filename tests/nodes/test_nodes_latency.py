@@ -199,7 +199,8 @@ def test_thread_priority_switches_only_the_calling_thread():
         p = ThreadPriority()
         p.normal()
         other = [int(t) for t in os.listdir("/proc/self/task") if int(t) != threading.get_native_id()]
-        print(os.sched_getscheduler(0) == os.SCHED_OTHER, all(os.sched_getscheduler(t) == os.SCHED_FIFO for t in other))
+        print(os.sched_getscheduler(0) == os.SCHED_FIFO and os.sched_getparam(0).sched_priority == 1,
+              all(os.sched_getparam(t).sched_priority == 9 for t in other))
         p.realtime_again()
         print(os.sched_getscheduler(0) == os.SCHED_FIFO, os.sched_getparam(0).sched_priority)
         ev.set()

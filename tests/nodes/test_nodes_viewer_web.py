@@ -47,10 +47,15 @@ def test_served_web_viewer_shows_the_service(chromium, tmp_path, tmp_path_factor
     try:
         L.start()
         assert wait_for(lambda: len(L.monitor.poses) > 30, 30, L), "no poses"
-        # everything the viewer serves listens on loopback only
+        # everything the viewer serves listens on loopback only (the web server, a low-priority
+        # child of the viewer, may still be starting)
         viewer = psutil.Process(L.pid("viewer"))
-        socks = _listening([viewer.pid] + [c.pid for c in viewer.children(recursive=True)])
-        assert (("127.0.0.1", web) in socks) and (("127.0.0.1", grpc) in socks), socks
+
+        def served():
+            socks = _listening([viewer.pid] + [c.pid for c in viewer.children(recursive=True)])
+            return socks if (("127.0.0.1", web) in socks) and (("127.0.0.1", grpc) in socks) else None
+        socks = wait_for(served, 30, L)
+        assert socks, _listening([viewer.pid] + [c.pid for c in viewer.children(recursive=True)])
         assert all(ip == "127.0.0.1" for ip, _ in socks), socks
 
         browser = HeadlessChromium(chromium, size=(1400, 900), user_dir=tmp_path / "chromium")
