@@ -47,9 +47,9 @@ def wait_for(predicate, timeout_s: float, launcher=None, step_s: float = 0.05):
 class HeadlessChromium:
     """Debian's chromium, headless, driven over the DevTools protocol on a pipe (no network).
 
-    ``screenshot(url, wait_s)`` opens ``url`` in a new tab, waits in real time (the web
-    viewer streams and compiles WebAssembly, which virtual time does not cover) and returns
-    PNG bytes.
+    ``open(url)`` opens ``url`` in a new tab; ``capture(tab)`` returns PNG bytes of what it
+    shows now (poll in real time: the web viewer streams and compiles WebAssembly, which
+    virtual time does not cover).
     """
 
     FLAGS = ("--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
@@ -102,12 +102,15 @@ class HeadlessChromium:
                     raise RuntimeError(f"{method}: {reply['error']}")
                 return reply.get("result", {})
 
-    def screenshot(self, url: str, wait_s: float) -> bytes:
+    def open(self, url: str) -> str:
+        """Open ``url`` in a new tab; returns the DevTools session of that tab."""
+        target = self._send("Target.createTarget", {"url": url})["targetId"]
+        return self._send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
+
+    def capture(self, session: str) -> bytes:
+        """PNG bytes of what the tab shows now."""
         import base64
 
-        target = self._send("Target.createTarget", {"url": url})["targetId"]
-        session = self._send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
-        time.sleep(wait_s)
         shot = self._send("Page.captureScreenshot", {"format": "png"}, session)
         return base64.b64decode(shot["data"])
 
