@@ -8,7 +8,7 @@ no hand-over to another thread adds to the latency. A pose that cannot be conver
 values) or sent is dropped, counted and logged; the node goes on.
 
 Status ``extra``: ``sent`` bundles, ``send_errors``, ``added_ms_p50`` / ``added_ms_p99``
-(pose received -> bundle sent, last 300 poses), ``pub_to_send_ms_p99`` (fusion published ->
+(pose received -> bundle sent, last ``WINDOW`` poses), ``pub_to_send_ms_p99`` (fusion published ->
 sent, same host).
 
     python -m nodes.streamer --rig RIG.toml --stream vmc:127.0.0.1:39539 [--allow-remote-stream]
@@ -30,12 +30,12 @@ from mocap_rt.body.skeleton import BoneLengths, body_model
 from mocap_rt.io.vmc import parse_vmc_target, vmc_bundle
 from nodes.frame_window import FrameWindow
 from nodes.messages import Pose, Trigger
-from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, setup_logging
+from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, node_session, setup_logging
 from nodes.transport import direct_callback
 
 log = logging.getLogger(__name__)
 
-WINDOW = 300          # poses over which the status percentiles are taken
+WINDOW = 3600         # poses over which the status percentiles are taken (2 min at 30 fps)
 
 
 class VmcSender:
@@ -82,6 +82,7 @@ def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
     added: deque[float] = deque(maxlen=WINDOW)
     pub_to_send: deque[float] = deque(maxlen=WINDOW)
     lock = threading.Lock()            # the callback appends on Zenoh's thread
+    idle_gc = IdleGC()                 # collections after a bundle is sent, never before
 
     window = FrameWindow(keys.rig, rt.node)     # only poses of triggered frames near the newest
 
@@ -111,7 +112,9 @@ def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
             added.append(ms)
             pub_to_send.append((time.monotonic_ns() - msg.t_pub_mono_ns) / 1e6)
         rt.meter.add(ms)
+        idle_gc.idle()
 
+    idle_gc.start()
     subs = [session.declare_subscriber(keys.pose, direct_callback(on_pose)),
             session.declare_subscriber(keys.trigger, direct_callback(on_trigger))]
     rt.publish_status("running", force=True)
@@ -127,6 +130,7 @@ def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
     finally:
         for sub in subs:
             sub.undeclare()
+        idle_gc.stop()
         log.info("streamer: %d bundles sent to %s:%d, %d send errors, %d poses dropped",
                  sender.sent, *sender.target, sender.send_errors, rt.drops)
 
@@ -156,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     log.info("streamer: VMC bundles to %s:%d", *target)
     try:
         with node_session(args, "streamer") as rt:
+            rt.enter_realtime(args.rt_priority)     # the launcher's SCHED_FIFO, like fusion's
             rt.publish_status("ready", force=True)
             run_streamer(rt.session, rt.keys, sender, rt)
             rt.publish_status("stopping", force=True)
