@@ -17,11 +17,16 @@ N_MOMENTS = 6
 
 
 @numba.njit(cache=True, nogil=True)
-def label_moments(skin, x0, y0, x1, y1, centers, gate2, sums):  # pragma: no cover - numba
-    """Initial labelling (A.2): each colour pixel to the nearest predicted centre within its gate.
+def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums):  # pragma: no cover - numba
+    """Initial labelling (A.2): each colour pixel to the predicted centre nearest in units of
+    the blobs' sizes, within its gate.
 
     skin (h, w) float32, pixels with value >= 0.5 count; scan the box [x0, x1) x [y0, y1).
-    centers (K, 2) float64 pixels (NaN = not tracked), gate2 (K,) squared gate radius px^2.
+    centers (K, 2) float64 pixels (NaN = not tracked), gate2 (K,) squared gate radius px^2,
+    inv_scale2 (K,) 1 / squared (relative) blob size: a pixel goes to the blob of least
+    ``d^2 * inv_scale2`` among those whose gate holds it, so where a hand touches the head
+    the split lies where the two predicted discs touch, not halfway between the centres
+    (issue 12: a merged skin region is split by the predicted blobs). Equal sizes: nearest.
     sums (K, 6) float64 is overwritten with the moments of each blob's pixels.
     """
     K = centers.shape[0]
@@ -38,8 +43,8 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, sums):  # pragma: no cov
                 dx = x - centers[k, 0]
                 dy = y - centers[k, 1]
                 d = dx * dx + dy * dy
-                if d < gate2[k] and d < bd:
-                    bd = d
+                if d < gate2[k] and d * inv_scale2[k] < bd:
+                    bd = d * inv_scale2[k]
                     best = k
             if best >= 0:
                 sums[best, 0] += 1.0
@@ -255,13 +260,14 @@ def _polygon_centroid(contour, n_pts, mx, my):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True)
-def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, kp, sums, xy, cov, area,
+def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp, sums, xy, cov, area,
                      contours, has_contour):  # pragma: no cover - numba
     """One tracker frame in one call: labelling (``label_moments``) + Gaussian blobs +
     deformable ellipse of each visible blob. Python per-blob overhead was most of the
     blob stage's time.
 
-    centers (K, 2) ROI px (NaN = none), gate (K,) px, visible (K,) bool. Outputs (K rows):
+    centers (K, 2) ROI px (NaN = none), gate (K,) px, size (K,) relative blob sizes (labelling
+    weights, ``label_moments``), visible (K,) bool. Outputs (K rows):
     sums (K, 6) moments, xy (K, 2) cue (NaN if < min_area pixels), cov (K, 2, 2), area (K,),
     contours (K, n_pts, 2), has_contour (K,) bool (False: occluded or refinement rejected).
     kp: packed parameters (min_area, scale, n_pts, search_frac, search_min_px, win_half_px,
@@ -297,7 +303,7 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, visible, kp, sums
         sy0 = max(y0, int(math.floor(loy)))
         sx1 = max(sx0, min(x1, int(math.ceil(hix)) + 1))
         sy1 = max(sy0, min(y1, int(math.ceil(hiy)) + 1))
-        label_moments(skin, sx0, sy0, sx1, sy1, centers, gate2, sums)
+        label_moments(skin, sx0, sy0, sx1, sy1, centers, gate2, 1.0 / (size * size), sums)
     mean = np.empty(2)
     c2 = np.empty((2, 2))
     sites = np.full((K, 5), np.nan)      # mean + inverse covariance of each found blob

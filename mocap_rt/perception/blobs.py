@@ -78,6 +78,10 @@ SNAP_WINDOW_GATES = 2.5     # region snap: search window around the predicted bl
 SNAP_MAX_REGIONS = 5        # ... and at most this many candidate regions (nearest first)
 SNAP_NEAR_GATES = 2.0       # ... only for blobs nearer each other than this many times their two gates
 ACQUIRE_MAX_REGIONS = 4     # re-acquisition considers the largest this many unclaimed regions
+# Relative image sizes of the blobs (the 3D cue radii of A.4: head 0.10 m, hand 0.05 m, shoe
+# 0.06 m): initial labelling splits a region shared by two blobs where their discs touch
+# (``blob_kernels.label_moments``): a hand on the head no longer takes half the face.
+ROLE_SIZE = {"head": 2.0, "hand_l": 1.0, "hand_r": 1.0, "foot_l": 1.0, "foot_r": 1.0}
 _NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
 _NAN_K = np.full(8, np.nan)
 
@@ -101,6 +105,7 @@ class BlobTracker:
         self._out_contours = np.zeros((K, params.n_contour_pts, 2))
         self._has_contour = np.zeros(K, np.bool_)
         self._all_visible = np.ones(K, np.bool_)
+        self._size = np.array([ROLE_SIZE.get(r, 1.0) for r in self.roles])
         self._acq_cand = np.empty((ACQUIRE_MAX_REGIONS, 4))   # acquire_candidates' output
         p = params
         self._kp = np.array([p.min_area_px, p.ellipse_scale, p.n_contour_pts, p.search_frac, p.search_min_px,
@@ -111,6 +116,20 @@ class BlobTracker:
 
     def reset(self) -> None:
         self.__init__(self.roles, self.params)
+
+    def reseat(self, k: int, xy: np.ndarray, radius_px: float) -> None:
+        """Put blob k's track at ``xy`` (2,) image px, at rest, with semi-major axis
+        ``radius_px`` (a scene-level correction); another blob tracked on that spot loses its
+        track (it is re-acquired from the regions left)."""
+        for j in range(len(self.roles)):
+            if j != k and np.hypot(*(self._xy[j] - xy)) < radius_px:
+                self._xy[j] = np.nan
+                self._coast[j] = self.params.max_coast_frames + 1
+        self._xy[k] = xy
+        self._last_seen[k] = xy
+        self._vel[k] = 0.0
+        self._coast[k] = 0
+        self._radius[k] = radius_px
 
     def predict_2d(self) -> tuple[np.ndarray, np.ndarray]:  # for callers; step uses predict_gates
         """Constant-velocity 2D prediction: (xy (K, 2) NaN where untracked, semi-major axis (K,) px)."""
@@ -180,7 +199,8 @@ class BlobTracker:
         p = self.params
         kp = self._kp if mirror else self._kp_nomirror
         label_and_refine(skin_roi, sil, box[0], box[1], box[2], box[3], np.ascontiguousarray(centers, np.float64),
-                         np.ascontiguousarray(gate, np.float64), visible, kp, self._sums, self._out_xy,
+                         np.ascontiguousarray(gate, np.float64), self._size, visible,
+                         kp, self._sums, self._out_xy,
                          self._out_cov, self._out_area, self._out_contours, self._has_contour)
         return self._sums[:, 0] >= p.min_area_px
 

@@ -32,6 +32,7 @@ from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
 from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, change_mask, largest_component_filled
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_model_from_spec
+from mocap_rt.perception.scene import TORSO_HEAD_RADII, SceneState, check_head, torso_from_head
 from mocap_rt.perception.silhouette import silhouette_colour
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
 
@@ -61,6 +62,9 @@ class PerceptionConfig:
     roi_margin_frac: float = 0.05         # ... + this fraction of the box's larger side
     min_person_area_px: int = 200         # smaller largest component: no person
     torso_ridge_frac: float = DEFAULT_RIDGE_FRAC
+    torso_head_radii: float = TORSO_HEAD_RADII   # torso = head + this x head radius toward the ridge centroid
+                                                 # (scene.py); 0 = the ridge centroid itself
+    head_check: bool = True               # re-seat a head that left the trunk's top for a skin region there (scene.py)
     torso_head_shift_frac: float = 0.0    # torso point moved this fraction of the torso->head distance away
                                           # from the head; the ridge's bias depends on the clip (docs), so off
     torso_step_px: int = 0                # distance-transform subsampling; 0 = 2 if width > 400 else 1
@@ -144,6 +148,7 @@ class CameraPerceiver:
         self._sil: np.ndarray | None = None                      # last silhouette in its box
         self._sil_box = (0, 0, 0, 0)
         self.last_contours: dict[str, np.ndarray] = {}           # deformed blob contours (viewer)
+        self.scene = SceneState()                                # head size and place on the trunk (scene.py)
 
     # ------------------------------------------------------------------ public
     @property
@@ -196,9 +201,19 @@ class CameraPerceiver:
                     self.last_contours[CUE_NAMES[k]] = c
         t3 = time.perf_counter()
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
+        ridge = txy + (bx, by)
+        if self.config.head_check:
+            seat = check_head(self.scene, xy[_HEAD], area[_HEAD], conf[_HEAD], ridge, tcov, skin, (bx, by))
+            if seat is not None:
+                xy[_HEAD], area[_HEAD], conf[_HEAD] = seat[0], seat[1], 0.5
+                self.skin_tracker.reseat(SKIN_CUES.index("head"), seat[0], 2.0 * np.sqrt(seat[1] / np.pi))
         if np.isfinite(txy).all():
-            xy[_TORSO] = txy + (bx, by)
-            if self.config.torso_head_shift_frac and np.isfinite(xy[_HEAD]).all():
+            xy[_TORSO] = ridge
+            head_torso = (torso_from_head(xy[_HEAD], self.scene.head_radius(), ridge, self.config.torso_head_radii)
+                          if self.config.torso_head_radii > 0 else None)
+            if head_torso is not None:
+                xy[_TORSO] = head_torso
+            elif self.config.torso_head_shift_frac and np.isfinite(xy[_HEAD]).all():
                 # bias correction (docs/perception.md, Torso), for a studio that measured it
                 xy[_TORSO] -= self.config.torso_head_shift_frac * (xy[_HEAD] - xy[_TORSO])
             cov[_TORSO] = tcov

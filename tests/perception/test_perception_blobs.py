@@ -33,12 +33,13 @@ def test_label_moments_matches_numpy_reference(seed):
     centers = rng.uniform(0, 50, (3, 2))
     centers[rng.integers(0, 3)] = np.nan
     gate = rng.uniform(5, 30, 3)
+    size = rng.uniform(3, 20, 3)
     sums = np.zeros((3, 6))
-    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, sums)
+    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, 1.0 / size ** 2, sums)
     ys, xs = np.nonzero(skin[3:38, 2:45])
     xs, ys = xs + 2.0, ys + 3.0
     d = (xs[:, None] - centers[None, :, 0]) ** 2 + (ys[:, None] - centers[None, :, 1]) ** 2
-    d = np.where(np.isfinite(d) & (d < gate * gate), d, np.inf)
+    d = np.where(np.isfinite(d) & (d < gate * gate), d / size ** 2, np.inf)         # nearest in blob sizes
     lab = np.where(np.isfinite(d.min(axis=1)), d.argmin(axis=1), -1)
     for k in range(3):
         sel = lab == k
