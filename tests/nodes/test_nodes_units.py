@@ -12,7 +12,7 @@ from mocap_rt.body.skeleton import BoneLengths, read_bone_lengths
 from mocap_rt.cues import CameraCues
 from mocap_rt.io.bvh import read_bvh
 from nodes.camera_worker import PredictionBox, TriggerSlot
-from nodes.fusion_node import FrameGatherer
+from mocap_rt.fusion.gather import FrameGatherer
 from nodes.messages import Cues, Keys, Pose, Trigger
 from nodes.monitor import percentiles
 from nodes.recorder import PoseFiles, PoseLog, output_paths
