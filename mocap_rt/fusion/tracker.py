@@ -1,19 +1,18 @@
 """Per-frame fusion: camera cues -> 3D cues -> body pose, with explicit state.
 
-``BodyTracker.step(frame, cues)`` does, for one frame:
+``BodyTracker.step(frame, cues)`` runs, for one frame, in this order:
 
-1. gather the 2D cues of the cameras present (absent cameras are simply missing) and
-   make their left/right labels agree (``views.fix_left_right``);
-2. triangulate the six cues, by ``FusionConfig.views``:
-   ``"all"`` (default) every camera that sees a cue, weighted least squares of the rays
-   with reprojection outlier rejection; or ``"pair"`` the frontal adjacent pair chosen
-   from the feet direction (seed digest A.6), falling back to all views for a cue the
-   pair does not both see;
-3. update a constant-velocity Kalman filter per cue (``fusion.filter``), which also
-   coasts through short gaps and gates outliers;
-4. solve the body: analytic two-link IK (A.5) with the pan estimated from the cues,
-   optionally refined by the improved CCD (B.7) on the full 38-DOF model;
-5. return a ``FusionResult`` (3D cues, joints, a BVH motion row, timings).
+1. silhouettes: the views' compact silhouettes prepared for the fit (``body.silhouette``);
+2. triangulate: the 2D cues of the cameras present, their left/right labels made to agree
+   (``views.fix_left_right``), triangulated by ``FusionConfig.views`` (``"all"``: every
+   view that sees a cue, with reprojection outlier rejection; ``"pair"``: the frontal
+   pair of seed digest A.6);
+3. identify: the labelling against its alternatives (hands / feet exchanged, the body
+   mirrored), switched on clear evidence (``fusion.identity``);
+4. filter: a constant-velocity Kalman filter per cue (``fusion.filter``), gating and coasting;
+5. ik: the pan and limb swivels fitted to the silhouettes and joint limits
+   (``body.fit``), the analytic two-link IK (A.5), optionally refined by the improved CCD
+   (B.7) on the 38-DOF model; then a ``FusionResult`` (3D cues, joints, BVH row, timings).
 
 ``predict(frame)`` extrapolates the filter to a coming frame and gives every camera the
 predicted 2D cues with Z-buffer visibility and blob radius (A.4).
