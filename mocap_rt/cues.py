@@ -82,6 +82,15 @@ class CompactSilhouette:
         small = cv2.resize(pad, (w, h), interpolation=cv2.INTER_AREA)
         return cls(x, y, step, small >= 0.5)
 
+    @classmethod
+    def box_around(cls, uv: np.ndarray) -> "CompactSilhouette":
+        """A filled box around the finite pixels ``uv`` (N, 2) (warm-ups, synthetic cues)."""
+        uv = np.asarray(uv, np.float64)
+        uv = uv[np.isfinite(uv).all(axis=1)]
+        x0, y0 = np.floor(uv.min(axis=0)).astype(int)
+        x1, y1 = np.ceil(uv.max(axis=0)).astype(int)
+        return cls.from_box_mask(np.ones((y1 - y0 + 1, x1 - x0 + 1), np.uint8), (x0, y0, x1 - x0 + 1, y1 - y0 + 1))
+
     def full_mask(self, width: int, height: int) -> np.ndarray:
         """(height, width) bool at image resolution (each cell repeated step x step)."""
         out = np.zeros((height, width), bool)

@@ -195,7 +195,7 @@ def exercise(motion: Path | None, work: Path, rec: Path | None = None) -> None:
         return
     import numpy as np
 
-    from mocap_rt.cues import N_CUES, CameraCues
+    from mocap_rt.cues import N_CUES, CameraCues, CompactSilhouette
     from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
     from mocap_rt.perception.pipeline import CameraPerceiver
 
@@ -208,9 +208,11 @@ def exercise(motion: Path | None, work: Path, rec: Path | None = None) -> None:
     pts = np.array([[0.0, 0.0, 1.7], [0.35, 0.0, 1.0], [-0.35, 0.0, 1.0], [0.12, 0.0, 0.05],
                     [-0.12, 0.0, 0.05], [0.0, 0.0, 1.25]])
     for f in range(3):
-        cues = {c.name: CameraCues(c.name, f, c.project(pts + [0.01 * f, 0, 0])[0],
-                                   np.tile(np.eye(2) * 4.0, (N_CUES, 1, 1)), np.full(N_CUES, 50.0),
-                                   np.ones(N_CUES)) for c in rig.cameras}
+        cues = {}
+        for c in rig.cameras:
+            uv = c.project(pts + [0.01 * f, 0, 0])[0]
+            cues[c.name] = CameraCues(c.name, f, uv, np.tile(np.eye(2) * 4.0, (N_CUES, 1, 1)), np.full(N_CUES, 50.0),
+                                      np.ones(N_CUES), silhouette=CompactSilhouette.box_around(uv))
         tracker.step(f, cues)
         tracker.predict(f + 1)
 

@@ -58,11 +58,7 @@ def warm_up(rig, fps: float = 30.0) -> float:
         cues = {}
         for cam in rig.cameras:
             uv, _ = cam.project(WARM_UP_CUES_M + [0.01 * f, 0.0, 0.0])
-            # the cues' bounding box as the silhouette: compiles the silhouette fit too
-            x0, y0 = np.floor(np.nanmin(uv, axis=0)).astype(int)
-            x1, y1 = np.ceil(np.nanmax(uv, axis=0)).astype(int)
-            sil = CompactSilhouette.from_box_mask(np.ones((y1 - y0 + 1, x1 - x0 + 1), np.uint8),
-                                                  (x0, y0, x1 - x0 + 1, y1 - y0 + 1))
+            sil = CompactSilhouette.box_around(uv)     # a silhouette: the silhouette fit is loaded too
             cues[cam.name] = CameraCues(cam.name, f, uv, np.tile(np.eye(2) * WARM_UP_COV_PX2, (N_CUES, 1, 1)),
                                         np.full(N_CUES, 50.0), np.ones(N_CUES), silhouette=sil)
         tracker.step(f, cues)

@@ -14,9 +14,9 @@ silhouette (``mocap_rt.cues.CompactSilhouette``) by a two-sided chamfer distance
 Distances are converted from pixels to metres at the point's depth (``d_px * z / f``),
 capped at ``CAP_M`` and averaged as squares, so the cost is in m^2 and the same for a
 near and a far camera. Lens distortion is ignored (pinhole ``K [R | t]``): the cells are
-2-4 pixels anyway. Everything per pose runs in numba (``pose_cost``: analytic pose ->
-angles -> forward kinematics -> capsules -> cost), so a search can afford ~100
-evaluations per frame at six cameras.
+2-4 pixels anyway. Everything per pose runs in numba (analytic pose -> angles -> forward
+kinematics -> capsules -> cost, ``body.fit``), so a search can afford ~50 evaluations
+per frame at six cameras.
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ import cv2
 import numpy as np
 from numba import njit
 
-from mocap_rt.body.kinematics import _fk
 from mocap_rt.body.skeleton import J
 from mocap_rt.cues import CameraCues
 from mocap_rt.geometry.camera import Camera
@@ -217,17 +216,6 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
                 total += s_out / n_outline[c]
             n_views += 1
     return total / n_views if n_views > 0 else 0.0
-
-
-@njit(cache=True, nogil=True)
-def pose_cost(parents, offsets, rest_local, root, angles, foot_pitch, rad, P, f, grid, dt, dt_off, outline,
-              n_outline, pos, rot, points, A, B):
-    """Chamfer cost (m^2) of a model pose (root (3,), angles (J, 3)); pos, rot, points,
-    A, B are scratch arrays (see ``forward_kinematics``, ``pose_points``, ``body_capsules``)."""
-    _fk(parents, offsets, rest_local, root, angles, pos, rot)
-    pose_points(pos, rot, foot_pitch, points)
-    body_capsules(points, A, B)
-    return capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline)
 
 
 def rig_projection(cameras: Sequence[Camera]) -> tuple[np.ndarray, np.ndarray]:
