@@ -8,7 +8,8 @@ turn rates; ``quick`` is four clips (a backwards walk, jumping jacks while turni
 modern dance, hands crossing in front of the face).
 
 Recordings are rendered once (6-camera ring, 30 fps, studio defaults) and cached under
-``bench/out/suite/<clip>_<rig><W>x<H>_r<render seed>``; an interrupted render is redone.
+``bench/out/suite/<clip>[_g<generator version>]_<rig><W>x<H>_r<render seed>`` (or
+``$MOCAP_RT_SUITE_CACHE``); an interrupted render is redone.
 """
 
 from __future__ import annotations
@@ -120,7 +121,10 @@ def ensure_recording(clip: SuiteClip, size: tuple[int, int] = (640, 480), rig: s
     from mocap_rt.studio.synth import make_rig, synthesize
     from mocap_rt.studio.variants import load_motion
 
-    out = CACHE / f"{clip.name}_{rig}{size[0]}x{size[1]}_r{render_seed}"
+    from mocap_rt.studio.procedural import GENERATOR_VERSION
+
+    gen = f"_g{GENERATOR_VERSION}" if clip.motion.startswith("procedural:") else ""
+    out = CACHE / f"{clip.name}{gen}_{rig}{size[0]}x{size[1]}_r{render_seed}"
     if (out / "truth.npz").exists():
         return out
     CACHE.mkdir(parents=True, exist_ok=True)

@@ -248,6 +248,12 @@ def angle_rmse_deg(est: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     return out
 
 
+def _mean_finite(values) -> float:
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
 def suite_metrics(truth: dict, frames: np.ndarray, cues: np.ndarray, joints: np.ndarray,
                   fusion_ms: np.ndarray | None = None) -> dict[str, float]:
     """The motion-suite figures of one clip (docs/body.md "Motion suite"): MPJPE, PA-MPJPE,
@@ -264,8 +270,8 @@ def suite_metrics(truth: dict, frames: np.ndarray, cues: np.ndarray, joints: np.
     herr = herr[np.isfinite(herr)]
     m = {"frames": int(len(frames)), "mpjpe_mm": acc.mpjpe_mm,
          "pa_mpjpe_mm": float(np.nanmean(procrustes_errors(joints, tj)) * 1e3),
-         "elbow_mm": float(np.nanmean([per_joint["elbow_l"], per_joint["elbow_r"]])),
-         "knee_mm": float(np.nanmean([per_joint["knee_l"], per_joint["knee_r"]])),
+         "elbow_mm": _mean_finite([per_joint["elbow_l"], per_joint["elbow_r"]]),
+         "knee_mm": _mean_finite([per_joint["knee_l"], per_joint["knee_r"]]),
          "mirrored_pct": float(100 * np.nanmean(mir)) if np.isfinite(mir).any() else float("nan"),
          "heading_med_deg": float(np.median(herr)) if herr.size else float("nan"),
          "heading_p95_deg": float(np.percentile(herr, 95)) if herr.size else float("nan"),

@@ -40,6 +40,10 @@ DEFAULT_SECONDS = 6.0
 # Fraction of the full leg length between hip and ankle when standing.
 STAND_LEG_FRAC = 0.99
 SIDES = ("Left", "Right")
+# Toe-tip above the heel point of a standing foot, degrees (the shared clips: -9.5 to -11.5).
+FOOT_PITCH_DEG = -10.0
+# Bumped when the generator changes what a (name, seed) produces (cached renders key on it).
+GENERATOR_VERSION = 2
 PELVIS_TILT_FRAC = 0.4    # share of the trunk's forward bend taken by the pelvis (the rest: 3 x 0.2)
 
 
@@ -105,6 +109,7 @@ class SkeletonGeometry:
     offsets: np.ndarray            # (J, 3) offsets in world axes, metres
     ankle_height_m: float          # ankle height when the foot stands flat on the floor
     landmarks: dict                # standing pose, heading 0 (facing +X), pelvis over origin
+    foot_tilt_rad: float = 0.0     # toe-down rotation of the foot that gives FOOT_PITCH_DEG
 
     def index(self, name: str) -> int:
         return self.skeleton.index(name)
@@ -214,7 +219,8 @@ def solve_script(g: SkeletonGeometry, s: Script) -> np.ndarray:
         glob[f"{side}Leg"] = _bone_rotation(g, f"{side}Foot", ankle - knee, hinge, lat)
         down = np.broadcast_to([0.0, 0.0, -1.0], (F, 3))
         level = _bone_rotation(g, f"{side}Foot", down, np.broadcast_to(lat, (F, 3)), lat)
-        glob[f"{side}Foot"] = _rot("z", s.foot_heading[:, k] + np.pi / 2) @ level
+        tilt = _rot("x", np.full(F, g.foot_tilt_rad))
+        glob[f"{side}Foot"] = _rot("z", s.foot_heading[:, k] + np.pi / 2) @ tilt @ level
     return _motion_from_globals(skel, g.unit_m, s.pelvis, glob)
 
 
@@ -253,13 +259,18 @@ def skeleton_geometry(skeleton_path: str | None = None) -> SkeletonGeometry:
     hips = np.stack([pos[0, skel.index(f"{s}UpLeg")] for s in SIDES]) - probe.pelvis[0]
     land = {"hip_offsets": hips}
     leg = STAND_LEG_FRAC * min(g.length(f"{s}Leg") + g.length(f"{s}Foot") for s in SIDES)
-    # ankle height: the lowest toe/heel point on the floor
     pelvis_z = 1.0 - hips[0, 2] + leg
-    pts = body_points(g, solve_script(g, _standing_script(g, pelvis_z, 1.0, land)))
+    tilt = 0.0
+    for _ in range(4):          # the foot's tilt: toe-tip to heel at FOOT_PITCH_DEG (the heel point moves too)
+        g = SkeletonGeometry(skel, unit, offsets, 0.0, land, tilt)
+        pts = body_points(g, solve_script(g, _standing_script(g, pelvis_z, 1.0, land)))
+        d = pts["toe_l"][0] - pts["heel_l"][0]
+        tilt += np.arctan2(d[2], np.hypot(d[0], d[1])) - np.radians(FOOT_PITCH_DEG)
+    # ankle height: the lowest toe/heel point on the floor
     low = min(float(pts[n][0, 2]) for n in ("toe_l", "toe_r", "heel_l", "heel_r"))
     ankle_h = 1.0 - low
     pelvis_z = ankle_h - hips[0, 2] + leg
-    g = SkeletonGeometry(skel, unit, offsets, ankle_h, land)
+    g = SkeletonGeometry(skel, unit, offsets, ankle_h, land, tilt)
     pts = body_points(g, solve_script(g, _standing_script(g, pelvis_z, ankle_h, land)))
     land.update({n: v[0] for n, v in pts.items()})
     land["pelvis_z"] = pelvis_z
