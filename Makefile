@@ -24,8 +24,8 @@ GST_DEBS := gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-go
 # Debian packages the tests need: chromium (the web viewer test), iproute2 (network namespaces),
 # GStreamer (the gst: source tests).
 system-deps:
-	@command -v chromium >/dev/null 2>&1 && command -v ip >/dev/null 2>&1 && dpkg -s $(GST_DEBS) >/dev/null 2>&1 || { \
-	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium iproute2 $(GST_DEBS); }
+	@command -v chromium >/dev/null 2>&1 && command -v ip >/dev/null 2>&1 && command -v openssl >/dev/null 2>&1 && dpkg -s $(GST_DEBS) >/dev/null 2>&1 || { \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium iproute2 openssl $(GST_DEBS); }
 
 # PyGObject into the venv (the `gst` extra) once GStreamer's headers are there (make system-deps);
 # without them the rest of the project works and gst: sources say what to install.

@@ -17,8 +17,8 @@ the triggers it receives and asks it about every cues / prediction / pose messag
 Triggers themselves are the reference (on an authenticated bus only the sync node may publish
 them, see ``deploy/zenoh``). On an open bus the window still refuses a trigger whose frame and
 time do not fit the previous trigger's: frames must increase, and with a fixed period the frame
-step must match the time step within ``TRIGGER_SLACK_FRAMES`` (the sync skips the slots of
-time it lost, so the two always agree). ``REANCHOR_TRIGGERS`` consecutive refused triggers that
+step may exceed the time step (in periods) by at most ``TRIGGER_SLACK_FRAMES`` (the sync never
+sends a frame before its slot; a late one may come any time later). ``REANCHOR_TRIGGERS`` consecutive refused triggers that
 fit one another (a restarted sync, or a forged first trigger) re-anchor the window.
 
 Every drop is counted per reason (``drops``) and logged at most once per ``LOG_PERIOD_S``.
@@ -44,14 +44,17 @@ REASONS = ("rig", "future", "stale", "unknown", "stamp", "trigger")
 
 
 def _fits(prev: tuple[int, int, int], frame: int, t_ns: int, period_ns: int) -> bool:
-    """A trigger ``(frame, t_ns)`` can follow ``prev = (frame, t_ns, period_ns)``."""
+    """A trigger ``(frame, t_ns)`` can follow ``prev = (frame, t_ns, period_ns)``: a later frame,
+    not earlier than its slot allows. (It may be later: a descheduled sync sends a trigger
+    late; the slots it then missed are skipped, which only makes the frame step smaller than
+    the time step.)"""
     f0, t0, p0 = prev
     if frame <= f0:
         return False
     if period_ns <= 0 or p0 != period_ns:
         return period_ns == p0          # free-running: no time relation; a new rate: refuse
     steps = (t_ns - t0) / period_ns
-    return abs((frame - f0) - steps) <= TRIGGER_SLACK_FRAMES
+    return (frame - f0) - steps <= TRIGGER_SLACK_FRAMES
 
 
 class FrameWindow:
