@@ -16,9 +16,10 @@ the triggers it receives and asks it about every cues / prediction / pose messag
 
 Triggers themselves are the reference (on an authenticated bus only the sync node may publish
 them, see ``deploy/zenoh``). On an open bus the window still refuses a trigger whose frame and
-time do not fit the previous trigger's: frames must increase, and with a fixed period the frame
-step may exceed the time step (in periods) by at most ``TRIGGER_SLACK_FRAMES`` (the sync never
-sends a frame before its slot; a late one may come any time later). ``REANCHOR_TRIGGERS`` consecutive refused triggers that
+time do not fit the previous triggers': frames must increase, and with a fixed period no frame
+may come more than ``TRIGGER_SLACK_FRAMES`` periods before its slot ``t0 + k * period`` (the sync
+never sends a frame early; a late one may come any time later, and the slots it missed are
+skipped). ``REANCHOR_TRIGGERS`` consecutive refused triggers that
 fit one another (a restarted sync, or a forged first trigger) re-anchor the window.
 
 Every drop is counted per reason (``drops``) and logged at most once per ``LOG_PERIOD_S``.
@@ -44,17 +45,22 @@ REASONS = ("rig", "future", "stale", "unknown", "stamp", "trigger")
 
 
 def _fits(prev: tuple[int, int, int], frame: int, t_ns: int, period_ns: int) -> bool:
-    """A trigger ``(frame, t_ns)`` can follow ``prev = (frame, t_ns, period_ns)``: a later frame,
-    not earlier than its slot allows. (It may be later: a descheduled sync sends a trigger
-    late; the slots it then missed are skipped, which only makes the frame step smaller than
-    the time step.)"""
-    f0, t0, p0 = prev
+    """A trigger ``(frame, t_ns)`` can follow ``prev = (last frame, schedule origin, period_ns)``:
+    a later frame, not sent before its slot. The sync sends frame ``k`` at ``t0 + k * period``
+    or later (a descheduled sync is late, then skips the slots it missed), so ``t - k * period``
+    never falls below the origin ``t0``, the smallest such value seen."""
+    f0, origin, p0 = prev
     if frame <= f0:
         return False
     if period_ns <= 0 or p0 != period_ns:
         return period_ns == p0          # free-running: no time relation; a new rate: refuse
-    steps = (t_ns - t0) / period_ns
-    return (frame - f0) - steps <= TRIGGER_SLACK_FRAMES
+    return t_ns - frame * period_ns >= origin - TRIGGER_SLACK_FRAMES * period_ns
+
+
+def _origin(prev: tuple[int, int, int] | None, frame: int, t_ns: int, period_ns: int) -> int:
+    """The schedule origin after a fitting trigger: the smallest ``t - frame * period``."""
+    mine = t_ns - frame * max(period_ns, 0)
+    return mine if prev is None or prev[2] != period_ns else min(prev[1], mine)
 
 
 class FrameWindow:
@@ -67,7 +73,7 @@ class FrameWindow:
         self.behind = int(behind)
         self.ahead = int(ahead)
         self.current: int | None = None                      # newest accepted trigger's frame
-        self._last: tuple[int, int, int] | None = None       # (frame, t_mono_ns, period_ns)
+        self._last: tuple[int, int, int] | None = None       # (frame, schedule origin ns, period_ns)
         self._triggered: OrderedDict[int, int] = OrderedDict()   # frame -> t_mono_ns, window only
         self._held: list[tuple[int, int | None, object]] = []    # (frame, stamp, item)
         self._refused: list[tuple[int, int, int]] = []           # consistent refused triggers
@@ -105,18 +111,20 @@ class FrameWindow:
                 self._drop("rig", "trigger", frame)
                 return False, []
             if self._last is not None and not _fits(self._last, frame, t_mono_ns, period_ns):
-                if self._refused and _fits(self._refused[-1], frame, t_mono_ns, period_ns):
-                    self._refused.append((frame, t_mono_ns, period_ns))
+                chain = self._refused[-1] if self._refused else None
+                if chain is not None and _fits(chain, frame, t_mono_ns, period_ns):
+                    self._refused.append((frame, _origin(chain, frame, t_mono_ns, period_ns), period_ns))
                 else:
-                    self._refused = [(frame, t_mono_ns, period_ns)]
+                    self._refused = [(frame, _origin(None, frame, t_mono_ns, period_ns), period_ns)]
                 if len(self._refused) < REANCHOR_TRIGGERS:
                     self._drop("trigger", "trigger", frame)
                     return False, []
                 log.warning("%s: %d consistent triggers outside the window: re-anchored at frame %d "
                             "(was %s)", self.name, len(self._refused), frame, self.current)
                 self._triggered.clear()
+                self._last = None
             self._refused = []
-            self._last = (frame, t_mono_ns, period_ns)
+            self._last = (frame, _origin(self._last, frame, t_mono_ns, period_ns), period_ns)
             self.current = frame
             self._triggered[frame] = t_mono_ns
             while self._triggered and next(iter(self._triggered)) < frame - self.behind:

@@ -115,7 +115,9 @@ def test_triggers_must_fit_the_previous_one_and_a_restarted_sync_re_anchors():
     assert w.accept(trig(8)) == [trig(8)]                            # the sync skipped 5..7 (it was late)
     late = trig(9, t=trig(9).t_mono_ns + 40 * PERIOD)                # sent 40 periods late (descheduled)
     assert w.accept(late) == [late]
-    assert w.accept(trig(13, t=late.t_mono_ns + PERIOD)) == []       # 4 frames in one period: too early
+    skip = trig(50, t=late.t_mono_ns + PERIOD // 10)                # ... then skipped to the slot it is in
+    assert w.accept(skip) == [skip]
+    assert w.accept(trig(60, t=T0 + 56 * PERIOD)) == []             # 4 periods before its slot: refused
     # the sync restarts at frame 0 with a new clock: re-anchored after REANCHOR_TRIGGERS triggers
     t_new = T0 + 10**12
     got = [w.accept(trig(f, t=t_new + f * PERIOD)) for f in range(REANCHOR_TRIGGERS + 2)]
