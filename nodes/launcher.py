@@ -45,7 +45,7 @@ REALTIME_ROLES = ("sync", "camera", "fusion")   # the trigger -> pose path: ``ni
 BACKGROUND_NICE = 10           # viewer, recorder (when the frame path is not real-time), hot spare
 BACKGROUND_ROLES = ("viewer", "recorder", "spare")
 DEFAULT_RT_PRIORITY = 10       # SCHED_FIFO priority of the workers (fusion 11, sync 12)
-RT_PRIORITY_OFFSET = {"camera": 0, "fusion": 1, "sync": 2, "streamer": 1}   # streamer: ~0.2 ms a pose
+RT_PRIORITY_OFFSET = {"camera": 0, "fusion": 1, "sync": 2, "streamer": 2}   # streamer: ~0.3 ms a pose
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                      "NUMBA_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1"}
 

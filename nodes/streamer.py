@@ -160,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     log.info("streamer: VMC bundles to %s:%d", *target)
     try:
         with node_session(args, "streamer") as rt:
-            rt.enter_realtime(args.rt_priority)     # the launcher's SCHED_FIFO, like fusion's
+            rt.enter_realtime(args.rt_priority)     # the launcher's SCHED_FIFO: above fusion's predictions
             rt.publish_status("ready", force=True)
             run_streamer(rt.session, rt.keys, sender, rt)
             rt.publish_status("stopping", force=True)
