@@ -20,7 +20,7 @@ def test_deploy_files_exist():
     assert {p.stem for p in CONFIGS} == {"sync-host", "camera-host", "fusion-host"}
     assert {p.name for p in UNITS} == {"mocap-rt-sync.service", "mocap-rt-camera@.service",
                                        "mocap-rt-fusion.service", "mocap-rt-recorder.service",
-                                       "mocap-rt-viewer.service"}
+                                       "mocap-rt-viewer.service", "mocap-rt-stream.service"}
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.stem)
@@ -75,3 +75,6 @@ def test_systemd_unit_runs_a_valid_node_command(path):
     assert args.zenoh_config is not None and args.zenoh_config.name.startswith("zenoh-")
     if argv[1] == "camera":
         assert args.camera == "cam_1" and args.source == "v4l2:/dev/mocap-cam_1"
+    if argv[1] == "stream":
+        from mocap_rt.io.vmc import parse_vmc_target
+        assert parse_vmc_target(args.stream, args.allow_remote_stream) == ("10.10.0.50", 39539)
