@@ -34,8 +34,11 @@ def recording(path: Path, codec: str) -> Path:
 
 
 def cluster(rec: Path, source: str, out: Path, **kw) -> np.lib.npyio.NpzFile:
+    import shutil
+
     from nodes.launcher import Launcher, RunConfig
 
+    shutil.rmtree(out, ignore_errors=True)     # the recorder never overwrites: start clean
     cfg = RunConfig(rig_path=rec / "rig.toml", source=source, record=out / "rec", log_dir=out / "logs",
                     status_line=False, speed=SPEED, deadline_frac=1.0, **kw)
     Launcher(cfg).run()
