@@ -15,20 +15,19 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from nodes.frame_window import window_drops
 from nodes.messages import Keys
-from nodes.monitor import ServiceMonitor, percentiles
+from nodes.monitor import ServiceMonitor
 from nodes.procs import _child_setup, _ephemeral_range, ensure_kernels_warm, free_port, kill_group, renice  # noqa: F401
+from nodes.run_config import NodeProc, RunConfig, replay_frames, source_fps  # noqa: F401  (RunConfig: API)
+from nodes.run_report import _json_safe, run_stats, status_line  # noqa: F401
 from nodes.sources import parse_source
 from nodes.transport import make_config, zenoh_argv
 
@@ -50,65 +49,6 @@ SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_N
                      "NUMBA_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1"}
 
 
-@dataclass(frozen=True)
-class RunConfig:
-    """Everything ``mocap-rt run`` was asked to do (see ``nodes/cli.py`` for the flags)."""
-
-    rig_path: Path
-    source: str
-    speed: float | None = 1.0          # None = as fast as possible (free-running sync)
-    duration_s: float | None = None
-    rerun: str | None = None
-    record: Path | None = None
-    stats: Path | None = None
-    rig_name: str | None = None
-    deadline_frac: float = 0.8
-    bones: Path | None = None          # the subject's bone lengths TOML (default: estimated live)
-    preview_every: int | None = None
-    restart: bool = True
-    log_dir: Path | None = None
-    status_line: bool = True
-    fps: float | None = None           # override the trigger base rate
-    nice: int = 0                      # niceness of sync, workers, fusion (negative: higher priority)
-    rt_priority: int | None = None     # SCHED_FIFO base priority of workers (fusion +1, sync +2)
-                                       # once warmed up; 0 = off; None = auto (DEFAULT_RT_PRIORITY
-                                       # at a triggered rate, off when free-running)
-    extra_node_args: dict = field(default_factory=dict)   # node role -> extra argv
-    stream: str | None = None          # pose stream, e.g. "vmc:127.0.0.1:39539" (nodes/streamer.py)
-    allow_remote_stream: bool = False  # let the stream leave this host
-    backgrounds_from: Path | None = None   # gst: sources: a recording's stored backgrounds
-
-
-def _json_safe(x):
-    """NaN/inf -> None so the stats file is strict JSON."""
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
-@dataclass
-class NodeProc:
-    """One supervised node process."""
-
-    name: str
-    role: str
-    argv: list[str]
-    port: int
-    proc: subprocess.Popen | None = None
-    restarts: int = 0
-    cpu_done_s: float = 0.0            # CPU of earlier (dead) instances
-    cpu_last_s: float = 0.0            # CPU of the current instance, last seen
-    finished: bool = False             # exited on its own with code 0 (sync at end of replay)
-
-    @property
-    def cpu_s(self) -> float:
-        return self.cpu_done_s + self.cpu_last_s
-
-
 class Launcher:
     """Starts, supervises and stops the node processes of one run; collects statistics."""
 
@@ -124,11 +64,11 @@ class Launcher:
         self.rig = read_rig(cfg.rig_path)
         self.rig_name = cfg.rig_name or rig_name_for(cfg.rig_path, self.rig)
         self.keys = Keys(self.rig_name)
-        self.base_fps = cfg.fps or self._source_fps(kind, value)
+        self.base_fps = cfg.fps or source_fps(kind, value, self.rig)
         self.trigger_fps = 0.0 if cfg.speed is None else self.base_fps * cfg.speed
         self.realtime = False              # the frame path will run SCHED_FIFO (set by _rt_priority)
         self.rt_priority = self._rt_priority()
-        self.n_replay_frames = self._replay_frames(kind, value)
+        self.n_replay_frames = replay_frames(kind, value)
         self.log_dir = Path(cfg.log_dir or tempfile.mkdtemp(prefix="mocap-rt-logs-"))
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.nodes: dict[str, NodeProc] = {}
@@ -165,22 +105,6 @@ class Launcher:
         else:
             self.realtime = True
         return want
-
-    def _source_fps(self, kind: str, value: str) -> float:
-        if kind in ("replay", "fake"):
-            from mocap_rt.io.recording import Recording
-
-            return float(Recording(value).fps)
-        from nodes.runtime import rig_fps
-
-        return rig_fps(self.rig)
-
-    def _replay_frames(self, kind: str, value: str) -> int | None:
-        if kind != "replay":
-            return None
-        from mocap_rt.io.recording import Recording
-
-        return int(Recording(value).n_frames)
 
     def _worker_sources(self) -> dict[str, str]:
         kind, value = parse_source(self.cfg.source)
@@ -434,20 +358,6 @@ class Launcher:
             return False
         return time.monotonic_ns() - t0_ns >= self.cfg.duration_s * 1e9
 
-    def status_line(self) -> str:
-        m = self.monitor
-        trig, poses, missing = m.counts()
-        lat = percentiles(m.latencies_ms(last=300))
-        cams = m.alive_nodes("camera")
-        n_cams = sum(1 for n in self.nodes.values() if n.role == "camera")
-        table = m.node_table()
-        drops = sum(v["drops"] for v in table.values())
-        decode = sum(v["decode_drops"] for v in table.values()) + m.decoder.total_drops
-        t = 0.0 if self.t_sync_start is None else time.monotonic() - self.t_sync_start
-        return (f"t={t:6.1f}s  pose fps {m.recent_fps():5.1f}  triggered {trig}  poses {poses}  "
-                f"no-pose {missing}  latency p50 {lat['p50']:.1f} p99 {lat['p99']:.1f} ms  "
-                f"node drops {drops}  decode drops {decode}  cameras alive {len(cams)}/{n_cams}")
-
     def run(self) -> dict:
         """start -> supervise until done -> stop; returns the statistics dict."""
         prev = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -524,40 +434,10 @@ class Launcher:
             self.session = None
 
     # ------------------------------------------------------------ statistics
+    def status_line(self) -> str:
+        """The live status line (``nodes.run_report.status_line``)."""
+        return status_line(self)
+
     def stats(self) -> dict:
-        m = self.monitor
-        trig, poses, no_pose = m.counts() if m else (0, 0, 0)
-        table = m.node_table() if m else {}
-        lat = percentiles(m.latencies_ms()) if m else percentiles([])
-        run_s = 0.0
-        if m is not None and len(m.triggers) > 1:     # first to last trigger seen, plus a period
-            t = sorted(m.triggers.values())
-            run_s = (t[-1] - t[0]) / 1e9 + (t[-1] - t[0]) / 1e9 / (len(t) - 1)
-        missing_any = sum(1 for p in m.poses if p.cameras_missing) if m else 0
-        nodes = {}
-        for name, n in self.nodes.items():
-            st = table.get(name, {})
-            nodes[name] = {"role": n.role, "cpu_s": round(n.cpu_s, 3),
-                           "cpu_s_running": round(n.cpu_s - self._cpu_at_start.get(name, 0.0), 3),
-                           "restarts": n.restarts,
-                           "drops": st.get("drops", 0), "decode_drops": st.get("decode_drops", 0),
-                           "fps": st.get("fps", 0.0), "processing_ms": st.get("processing_ms", 0.0),
-                           "rt_priority": st.get("x_rt_priority", 0)}
-        return {
-            "rig": self.rig_name, "source": self.cfg.source, "trigger_fps": self.trigger_fps,
-            "speed": "max" if self.cfg.speed is None else self.cfg.speed, "run_s": round(run_s, 3),
-            "frames_triggered": trig, "poses_published": poses, "frames_dropped": no_pose,
-            "node_drops": sum(v["drops"] for v in nodes.values()),
-            "decode_drops": sum(v["decode_drops"] for v in nodes.values()) + (m.decoder.total_drops if m else 0),
-            "frame_window_drops": window_drops(table, *([m.window] if m else [])),
-            "poses_with_missing_cameras": missing_any,
-            "latency_ms": {k: round(v, 3) for k, v in lat.items()},
-            "stages_ms": ({k: {q: round(v, 3) for q, v in d.items()} for k, d in m.stage_percentiles().items()}
-                          if m else {}),
-            "cameras": list(self.rig.names),
-            "cpu_s": {name: v["cpu_s"] for name, v in nodes.items()},
-            "cpu_s_running": {name: v["cpu_s_running"] for name, v in nodes.items()},
-            "nodes": nodes, "log_dir": str(self.log_dir),
-            **({"stream": {k[2:]: v for k, v in table.get("streamer", {}).items() if k.startswith("x_")}}
-               if "streamer" in self.nodes else {}),
-        }
+        """The run's statistics (``nodes.run_report.run_stats``; ``--stats`` writes them)."""
+        return run_stats(self)
