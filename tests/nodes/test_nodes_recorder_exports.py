@@ -41,3 +41,72 @@ def test_pose_files_write_c3d_and_trc_matching_the_npz(tmp_path):
     # a second recording in the same directory never touches these files
     assert output_paths(tmp_path)[0].name == "poses_001.npz"
     assert not list(tmp_path.glob("*.tmp*"))
+
+
+def test_recorder_killed_leaves_readable_c3d_and_trc(tmp_path):
+    """A recorder node process fed triggers and poses over Zenoh (loopback), then ``kill -9``:
+    poses.c3d and poses.trc open and hold what was sent until shortly before the kill, equal to
+    the NPZ; nothing half-written is left under the final names."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import zenoh
+
+    from mocap_rt.geometry.rig import write_rig
+    from mocap_rt.studio.synth import make_rig
+    from nodes.launcher import free_port
+    from nodes.messages import Keys, Status, Trigger
+    from nodes.transport import make_config
+
+    write_rig(make_rig(n_cameras=2, size=(320, 240)), tmp_path / "rig.toml")
+    port, keys = free_port(), Keys("rig")
+    proc = subprocess.Popen([sys.executable, "-m", "nodes.recorder", "--rig", str(tmp_path / "rig.toml"),
+                             "--rig-name", "rig", "--out", str(tmp_path / "out"), "--fps", "30",
+                             "--listen", f"tcp/127.0.0.1:{port}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    session = zenoh.open(make_config(["tcp/127.0.0.1:0"], [f"tcp/127.0.0.1:{port}"]))
+    states = []
+    sub = session.declare_subscriber(keys.status("*"),
+                                     lambda s: states.append(Status.from_msgpack(bytes(s.payload)).state))
+    rng = np.random.default_rng(5)
+    sent = {}
+    try:
+        t_end = time.monotonic() + 60
+        while "running" not in states and time.monotonic() < t_end:
+            time.sleep(0.05)
+        assert "running" in states, "recorder did not start"
+        period = round(1e9 / 30)
+        t0 = time.monotonic_ns()
+        for f in range(150):                         # 5 s at 30 fps
+            t = t0 + f * period
+            time.sleep(max(0.0, (t - time.monotonic_ns()) / 1e9))
+            session.put(keys.trigger, Trigger("rig", f, t, time.time_ns(), period).to_msgpack())
+            pose = _pose(f, rng)
+            pose = Pose("rig", f, t, time.monotonic_ns(), pose.cues_3d, pose.cue_valid, pose.joints,
+                        pose.bvh_frame, pose.cameras_used, (), pose.bones)
+            session.put(keys.pose, pose.to_msgpack())
+            sent[f] = (time.monotonic(), pose.joints)
+        time.sleep(0.3)
+        t_kill = time.monotonic()
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    finally:
+        sub.undeclare()
+        session.close()
+        if proc.poll() is None:
+            proc.kill()
+    out = tmp_path / "out"
+    c3d, trc = read_c3d(out / "poses.c3d"), read_trc(out / "poses.trc")
+    with np.load(out / "poses.npz") as z:
+        frames, joints = z["frames"], z["joints"]
+    assert not list(out.glob("*.tmp*"))
+    before = [f for f, (t, _) in sent.items() if t < t_kill - 2.5]   # export period 1 s + a loaded machine
+    assert before and min(c3d.n_frames, trc.n_frames) >= max(before) + 1 - frames[0]
+    rows = frames - frames[0]                                          # row = frame - first frame
+    held = rows < min(c3d.n_frames, trc.n_frames)
+    np.testing.assert_allclose(c3d.positions[rows[held]], joints[held], atol=1e-6)
+    np.testing.assert_allclose(trc.positions[rows[held]][..., 1], joints[held][..., 2], atol=1e-8)
+    np.testing.assert_allclose(joints[held], [sent[f][1] for f in frames[held]])
