@@ -1,7 +1,7 @@
 """Per-camera perception (issue 4): accuracy on studio recordings of every shared clip, speed.
 
     python -m bench perception                 # all clips, 640x480 and 320x240, both tables
-    python -m bench.bench_perception --speed   # speed table only
+    python -m bench.bench_perception --speed   # speed table only (under /tmp/mocap-timing.lock), x cvtColor
     python -m bench.bench_perception --real    # overlays on the real multi-view videos
     python -m bench perception --hard          # hard-case suite (bench/perception_hard.py; --quick, --json F)
 
@@ -260,18 +260,23 @@ def _print_row(name, size, mode, s):
 
 
 # ------------------------------------------------------------------ speed
-def speed(sizes, clip: Path) -> list[dict]:
-    """Median per-frame time of one camera's pipeline (frames pre-decoded), per stage."""
+def speed(sizes, clip: Path, reps: int = 3) -> list[dict]:
+    """Median per-frame time of one camera's pipeline (frames pre-decoded), per stage, and as
+    ratios to one ``cv2.cvtColor`` BGR->HSV pass over the same frame, timed alternately in this
+    process (issue 12 target: perception <= 2x that pass). Wall and thread CPU time: the CPU
+    ratio is what a shared machine measures best (preemption is not counted)."""
     import cv2
 
+    from bench.yardstick import header, yardstick_ms
     from mocap_rt.io.recording import Recording
     from mocap_rt.perception.pipeline import CameraPerceiver, PerceptionConfig
 
     cv2.setNumThreads(1)
     skin = str(ensure_studio_skin_model())
     rows = []
+    print(header(yardstick_ms()), flush=True)
     print(f"{'size':8s} {'camera':7s} {'total ms':>8s} {'p90':>6s} {'silh':>6s} {'colour':>6s} {'blobs':>6s} "
-          f"{'torso':>6s}  target", flush=True)
+          f"{'torso':>6s} {'cvt ms':>6s} {'x cvt':>6s} {'CPU x cvt':>9s}  target <= 2x", flush=True)
     for size in sizes:
         rec = Recording(ensure_recording(clip, size, seed=100))
         totals = {}
@@ -281,24 +286,33 @@ def speed(sizes, clip: Path) -> list[dict]:
             for f, img in enumerate(frames[:5]):
                 p.process(img, f)                         # warm-up (JIT loaded from cache)
             stages: dict[str, list[float]] = {}
-            for rep in range(3):
+            for rep in range(reps):
                 p = CameraPerceiver(rec.rig[name], rec.backgrounds(name), PerceptionConfig(skin_model_path=skin))
                 for f, img in enumerate(frames):
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.thread_time()
+                    cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+                    t1, c1 = time.perf_counter(), time.thread_time()
                     cues = p.process(img, f)
-                    stages.setdefault("wall", []).append((time.perf_counter() - t0) * 1e3)
+                    t2, c2 = time.perf_counter(), time.thread_time()
+                    for k, v in (("cvt", t1 - t0), ("cvt_cpu", c1 - c0), ("wall", t2 - t1), ("cpu", c2 - c1)):
+                        stages.setdefault(k, []).append(v * 1e3)
                     for k, v in cues.timings_ms.items():
                         stages.setdefault(k, []).append(v)
             med = {k: float(np.median(v)) for k, v in stages.items()}
             med["p90"] = float(np.percentile(stages["wall"], 90))
+            med["x_cvt"] = med["wall"] / med["cvt"]
+            med["cpu_x_cvt"] = med["cpu"] / med["cvt_cpu"]
             totals[name] = med
-            target = 2.0 if size[0] == 640 else 0.7
             print(f"{size[0]}x{size[1]:<4d} {name:7s} {med['wall']:8.3f} {med['p90']:6.2f} {med['silhouette']:6.3f} "
-                  f"{med.get('colour', 0):6.3f} {med.get('blobs', 0):6.3f} {med.get('torso', 0):6.3f}  <= {target}",
-                  flush=True)
+                  f"{med.get('colour', 0):6.3f} {med.get('blobs', 0):6.3f} {med.get('torso', 0):6.3f} "
+                  f"{med['cvt']:6.3f} {med['x_cvt']:6.2f} {med['cpu_x_cvt']:9.2f}", flush=True)
             rows.append({"size": f"{size[0]}x{size[1]}", "camera": name, **med})
-        allmed = float(np.median([v["wall"] for v in totals.values()]))
-        print(f"{size[0]}x{size[1]:<4d} {'median':7s} {allmed:8.3f}", flush=True)
+        m = {k: float(np.median([v[k] for v in totals.values()])) for k in next(iter(totals.values()))}
+        print(f"{size[0]}x{size[1]:<4d} {'median':7s} {m['wall']:8.3f} {m['p90']:6.2f} {m['silhouette']:6.3f} "
+              f"{m.get('colour', 0):6.3f} {m.get('blobs', 0):6.3f} {m.get('torso', 0):6.3f} {m['cvt']:6.3f} "
+              f"{m['x_cvt']:6.2f} {m['cpu_x_cvt']:9.2f}", flush=True)
+        print("    stages x cvt: " + ", ".join(f"{k} {m[k] / m['cvt']:.2f}" for k in
+                                               ("silhouette", "colour", "blobs", "torso")), flush=True)
     ready = _fresh_process_ready_s()
     print(f"fresh process: import + CameraPerceiver + first frame = {ready:.2f} s (target < 2 s, numba cache warm)")
     rows.append({"fresh_process_ready_s": ready})
@@ -388,6 +402,8 @@ def main(argv: list[str] | None = None) -> int:
         return hard_main([a for a in argv if a != "--hard"])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--speed", action="store_true", help="speed table only")
+    ap.add_argument("--no-lock", action="store_true", help="time without /tmp/mocap-timing.lock")
+    ap.add_argument("--speed-reps", type=int, default=3, help="passes over each camera's frames in the speed table")
     ap.add_argument("--accuracy", action="store_true", help="accuracy table only")
     ap.add_argument("--real", action="store_true", help="real-footage overlays only")
     ap.add_argument("--clips", nargs="*", help="clip name substrings (default: all shared clips)")
@@ -403,7 +419,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.accuracy or everything:
         report["accuracy"] = accuracy(clips, sizes, args.modes, with_uci=everything)
     if args.speed or everything:
-        report["speed"] = speed(sizes, clips[0])
+        from bench.yardstick import timing_lock
+
+        with timing_lock(not args.no_lock):
+            report["speed"] = speed(sizes, clips[0], args.speed_reps)
     if args.real or everything:
         real_footage()
     BENCH_OUT.mkdir(parents=True, exist_ok=True)

@@ -81,6 +81,12 @@ def stage_timings(pf: PendingFrame, t_ready_ns: int) -> dict[str, float]:
     if work:
         out["w_perceive_sum"] = sum(work)
         out["w_perceive_max"] = max(work)
+    # the workers' own per-stage perception times (mocap_rt.perception.pipeline), mean over the
+    # cameras, and their mean CPU per frame (the cluster's compute floor, bench/bench_service.py)
+    for key in ("silhouette", "colour", "blobs", "torso", "w_cpu"):
+        vals = [float(c.timings_ms[key]) for c in pf.cues.values() if key in c.timings_ms]
+        if vals:
+            out[("p_" + key) if key != "w_cpu" else "w_cpu_mean"] = sum(vals) / len(vals)
     if pf.t_last_ns:
         out["f_last_cue"] = (pf.t_last_ns - pf.t_trigger_mono_ns) / 1e6
     out["f_ready"] = (t_ready_ns - pf.t_trigger_mono_ns) / 1e6
