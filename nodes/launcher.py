@@ -129,7 +129,8 @@ class Launcher:
             plan.append(("recorder", "recorder", ["-m", "nodes.recorder", "--out", str(cfg.record),
                                                   "--fps", str(self.base_fps)] + (["--raw"] if live else [])))
         if cfg.rerun:
-            plan.append(("viewer", "viewer", ["-m", "nodes.viewer", "--rerun", cfg.rerun]))
+            plan.append(("viewer", "viewer", ["-m", "nodes.viewer", "--rerun", cfg.rerun,
+                                              "--preview-every", str(preview)]))
         if cfg.stream:
             plan.append(("streamer", "streamer", ["-m", "nodes.streamer", "--stream", cfg.stream]
                          + (["--allow-remote-stream"] if cfg.allow_remote_stream else [])))

@@ -46,6 +46,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_WEB_PORT = 9090
 DEFAULT_GRPC_PORT = 9876
+SERVE_MEMORY_LIMIT = "64MiB"    # history kept for late web viewers (~1.5 min of a 640x480 demo)
 QUEUE_MAX = 256                 # items waiting to be logged; beyond that the oldest are dropped
 DRAIN_S = 3.0                   # at stop: log what is still queued for at most this long
 PAIR_FRAMES_KEPT = 32           # cues / images waiting for their partner, per camera
@@ -239,7 +240,10 @@ def start_sink(spec: str, app_id: str = "mocap_rt") -> subprocess.Popen | None:
         return None
     web = int(args[0]) if args else DEFAULT_WEB_PORT
     grpc = int(args[1]) if len(args) > 1 else DEFAULT_GRPC_PORT
-    rr.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc))
+    # a browser that connects late gets the newest data first and at most SERVE_MEMORY_LIMIT of
+    # history (the whole run, replayed into a software-rendered page, kept it at "No data")
+    rr.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc, server_memory_limit=SERVE_MEMORY_LIMIT,
+                                   newest_first=True))
     url = f"rerun+http://127.0.0.1:{grpc}/proxy"
     exe = shutil.which("rerun", path=str(Path(sys.executable).parent)) or shutil.which("rerun")
     if exe is None:
@@ -337,8 +341,10 @@ def _jpeg_size(jpeg: bytes) -> str:
     return ""
 
 
-def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
-    """Log everything that arrives until ``rt.stop`` (off the Zenoh threads)."""
+def run_viewer(session, keys: Keys, rig, rt: NodeRuntime, preview_every: int = 0) -> None:
+    """Log everything that arrives until ``rt.stop`` (off the Zenoh threads). With
+    ``preview_every`` N > 0 (the workers' image rate), cues of frames without an image are
+    not queued: a camera panel only draws the cues of its image's frame."""
     import rerun as rr
 
     logger = RerunLogger(rig)
@@ -355,8 +361,10 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime) -> None:
         def cb(sample) -> None:
             msg = rt.decoder.decode(sample.payload, cls)
             for item in window.accept(msg) if msg is not None else ():
-                if not isinstance(item, Trigger):
-                    enqueue(item)
+                if isinstance(item, Trigger) or (preview_every > 0 and isinstance(item, Cues)
+                                                 and item.cues.frame % preview_every):
+                    continue
+                enqueue(item)
         return cb
 
     subs = [session.declare_subscriber(keys.trigger, handler(Trigger)),
@@ -412,6 +420,9 @@ def build_parser():
     """The node's command line (also checked against the deploy units in the tests)."""
     p = base_parser(__doc__.splitlines()[0], "viewer")
     p.add_argument("--rerun", required=True, help="save:FILE.rrd | serve[:WEB_PORT[:GRPC_PORT]] | spawn | connect:URL")
+    p.add_argument("--preview-every", type=int, default=0,
+                   help="the workers send an image every N frames: only those frames' cues are drawn "
+                        "(0 = unknown: every frame's)")
     return p
 
 
@@ -425,7 +436,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with node_session(args, "viewer") as rt:
             rt.publish_status("ready", force=True)
-            run_viewer(rt.session, rt.keys, rig, rt)
+            run_viewer(rt.session, rt.keys, rig, rt, args.preview_every)
             rt.publish_status("stopping", force=True)
     finally:
         # no rr.disconnect(): it can block ~10 s on a served stream; run_viewer flushed
