@@ -35,7 +35,7 @@ def header(ms: float) -> str:
 
 @contextmanager
 def timing_lock(enabled: bool = True, path: str = TIMING_LOCK):
-    """Hold the shared timing lock (team rule: timed figures are measured under it)."""
+    """Hold the timing lock, so that timed benches on a shared machine run one at a time."""
     if not enabled:
         yield
         return

@@ -38,6 +38,8 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
+from mocap_rt.io.files import atomic_write_text
+
 PACKAGE_DIR = Path(__file__).resolve().parent
 STAMP_NAME = "mocap_rt-numba-kernels.json"
 DEFAULT_CLIP = "bvh/cmu/cmu_02_01_walk.bvh"     # under $MOCAP_RT_DATA
@@ -244,9 +246,7 @@ def ensure_warm(motion: Path | None = None, force: bool = False, log=_say, rec: 
                  "kernels": len(dispatchers), "seconds": round(time.perf_counter() - t0, 1),
                  "scene": scene, "time": time.time()}
         path = stamp_path()
-        tmp_path = path.with_suffix(".tmp")
-        tmp_path.write_text(json.dumps(stamp, indent=1))
-        os.replace(tmp_path, path)
+        atomic_write_text(path, json.dumps(stamp, indent=1))
         log(f"warm-up: {compiled} kernel signatures compiled in {stamp['seconds']:.1f} s "
             f"({len(dispatchers)} cached kernels; stamp {path})")
         return stamp
