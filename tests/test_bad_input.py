@@ -148,7 +148,8 @@ def _earlier_process_output(*extra):
     def setup(tmp, rec, data):
         (tmp / "out").mkdir()
         (tmp / "out" / "bones.toml").write_text("[bones]\nthigh_m = 0.471\n")    # a subject's lengths
-        return _cmd("process", rec, tmp, *extra)
+        (tmp / "c.toml").write_text('[fusion]\nfps = "x"\n')                       # a settings file
+        return _cmd("process", rec, tmp, *(a.format(tmp=tmp) for a in extra))
     return setup
 
 
@@ -226,6 +227,8 @@ CASES = [
     Case("process-second-run", _earlier_process_output(),
          "mocap-rt process: error: --out: {tmp}/out/bones.toml exists (an earlier run's result); pass "
          "--overwrite to replace it or choose another --out", keep=("out/bones.toml",)),
+    Case("process-config-bad-value", _earlier_process_output("--config", "{tmp}/c.toml"),
+         "mocap-rt process: error: {tmp}/c.toml [fusion]: fps = 'x' is not a number", keep=("out/bones.toml",)),
     Case("process-max-frames-0", _earlier_process_output("--max-frames", "0"),
          "mocap-rt process: error: --max-frames must be >= 1, got 0", keep=("out/bones.toml",)),
     # ---- parse errors

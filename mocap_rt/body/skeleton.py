@@ -30,13 +30,12 @@ Limits come from the AAOS range-of-motion table (B.7), mirrored for the left sid
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from mocap_rt.geometry.rig import dumps_toml
+from mocap_rt.config import dumps_toml, load_dataclass
 from mocap_rt.names import JOINT_NAMES
 
 J = {name: i for i, name in enumerate(JOINT_NAMES)}
@@ -110,24 +109,9 @@ class BoneLengths:
 
 
 def read_bone_lengths(path: str | Path) -> BoneLengths:
-    """Read ``[bones]`` from a TOML file; unknown or bad keys raise ValueError naming the file."""
-    path = Path(path)
-    with open(path, "rb") as fh:
-        try:
-            doc = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"{path}: not valid TOML: {exc}") from None
-    table = doc.get("bones")
-    if not isinstance(table, dict):
-        raise ValueError(f"{path}: missing [bones] table")
-    known = {f.name for f in fields(BoneLengths)}
-    unknown = set(table) - known
-    if unknown:
-        raise ValueError(f"{path}: unknown key(s) in [bones]: {sorted(unknown)}")
-    try:
-        return BoneLengths(**{k: float(v) for k, v in table.items()})
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: [bones]: {exc}") from None
+    """Read ``[bones]`` from a TOML file; unknown or bad keys raise ``FileFormatError`` naming
+    the file and the key."""
+    return load_dataclass(BoneLengths, path, "bones", required=True)
 
 
 def write_bone_lengths(lengths: BoneLengths, path: str | Path) -> None:

@@ -22,7 +22,9 @@ def register(subparsers) -> None:
                               description=__doc__)
     p.add_argument("recording", type=Path, help="recording directory (mocap_rt.io.recording format)")
     p.add_argument("--out", type=Path, required=True, help="output .npz")
-    p.add_argument("--config", type=Path, help="perception config TOML (PerceptionConfig fields)")
+    p.add_argument("--config", type=Path, metavar="FILE",
+                   help="settings TOML: [perception] (PerceptionConfig) and [fusion] (FusionConfig, the "
+                        "closed loop) tables (mocap_rt/pipeline_config.py)")
     p.add_argument("--skin-model", default="auto",
                    help="skin model: a TOML file, a shipped name (skin, studio_skin) or 'auto' "
                         "(studio_skin for studio recordings, else the config's / shipped skin)")
@@ -98,9 +100,11 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from mocap_rt.io.recording import Recording
-    from mocap_rt.perception.pipeline import PerceptionConfig, config_for_source, load_perception_config
+    from mocap_rt.perception.pipeline import config_for_source
+    from mocap_rt.pipeline_config import PipelineConfig, load_pipeline_config
 
-    config = load_perception_config(args.config) if args.config else PerceptionConfig()
+    settings = load_pipeline_config(args.config) if args.config else PipelineConfig()
+    config = settings.perception
     with Recording(args.recording) as rec:
         if args.skin_model == "auto":
             config = config_for_source(config, rec.source)
@@ -111,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise ValueError(f"{args.recording}: no camera {unknown} (has {rec.camera_names})")
         result = perceive_recording(rec, cameras, config, args.max_frames, progress=not args.no_progress,
-                                    closed_loop=not args.open_loop)
+                                    closed_loop=not args.open_loop, fusion_config=settings.fusion)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(args.out, **result)
     found = np.isfinite(result["cues_2d"][..., 0]).mean(axis=(0, 1))

@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+# the choices of --views / --ik (mocap_rt.fusion.tracker.VIEW_MODES / IK_MODES; not imported
+# here so that ``mocap-rt --help`` stays quick; tests/fusion checks they agree)
+VIEW_MODES = ("all", "pair")
+IK_MODES = ("analytic", "ccd")
 
 
 def register(subparsers) -> None:
@@ -11,10 +17,14 @@ def register(subparsers) -> None:
         description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("rec_dir", metavar="REC_DIR", help="recording directory (docs/recording-format.md)")
     p.add_argument("--out", required=True, metavar="OUT_DIR", help="output directory")
-    p.add_argument("--views", choices=("all", "pair"), default="all",
-                   help="triangulate from all cameras that see a cue, or the frontal pair (A.6)")
-    p.add_argument("--ik", choices=("analytic", "ccd"), default="analytic",
-                   help="analytic two-link IK, or analytic + improved-CCD refinement")
+    p.add_argument("--config", type=Path, metavar="FILE",
+                   help="settings TOML: [perception] (PerceptionConfig) and [fusion] (FusionConfig) tables "
+                        "(mocap_rt/pipeline_config.py); the flags below override it")
+    p.add_argument("--views", choices=VIEW_MODES,
+                   help="triangulate from all cameras that see a cue, or the frontal pair (A.6) "
+                        "(default: the config's, 'all')")
+    p.add_argument("--ik", choices=IK_MODES,
+                   help="analytic two-link IK, or analytic + improved-CCD refinement (default: the config's, 'analytic')")
     p.add_argument("--bones", metavar="TOML", help="subject bone lengths ([bones] table); "
                    "default: estimated from the first seconds of cues")
     p.add_argument("--max-frames", type=int, help="process only the first N frames")
@@ -28,12 +38,13 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from dataclasses import replace
 
     from mocap_rt.body.skeleton import read_bone_lengths
     from mocap_rt.fusion.offline import process_recording
     from mocap_rt.fusion.tracker import FusionConfig
     from mocap_rt.io.files import claim_outputs, refuse_input_as_output
+    from mocap_rt.pipeline_config import load_pipeline_config
 
     rec = Path(args.rec_dir)
     if not rec.is_dir():
@@ -42,11 +53,15 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     outputs = [Path(args.out) / name for name in ("poses.bvh", "poses.npz", "bones.toml", "poses.c3d", "poses.trc")]
     for o in outputs:
-        refuse_input_as_output(o, [args.bones, *(rec / n for n in ("truth.npz", "rig.toml"))])
+        refuse_input_as_output(o, [args.bones, args.config, *(rec / n for n in ("truth.npz", "rig.toml"))])
+    settings = load_pipeline_config(args.config) if args.config else None
     claim_outputs(outputs, args.overwrite)
-    bones = read_bone_lengths(args.bones) if args.bones else None
-    cfg = FusionConfig(views=args.views, ik=args.ik, bone_lengths=bones)
-    out = process_recording(rec, args.out, cfg, max_frames=args.max_frames, truth_2d=args.truth_2d,
+    cfg = settings.fusion if settings else FusionConfig()
+    flags = {"views": args.views, "ik": args.ik,
+             "bone_lengths": read_bone_lengths(args.bones) if args.bones else None}
+    cfg = replace(cfg, **{k: v for k, v in flags.items() if v is not None})
+    out = process_recording(rec, args.out, cfg, settings.perception if settings else None,
+                            max_frames=args.max_frames, truth_2d=args.truth_2d,
                             noise_px=args.noise_px, progress=not args.no_progress)
     print(f"wrote {Path(args.out) / 'poses.bvh'}, poses.npz, poses.c3d, poses.trc and bones.toml ({len(out.frames)} frames)")
     print("timings (ms): " + ", ".join(f"{k} {v:.2f}" for k, v in out.timings_ms.items()))

@@ -87,7 +87,9 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
                       noise_px: float = 1.0, seed: int = 0, progress: bool = True) -> ProcessOutput:
     """Perception + fusion + IK over a recording; writes poses.bvh, .npz, .c3d, .trc, bones.toml.
 
-    config : fusion settings (default: ``FusionConfig(fps=recording fps)``).
+    config : fusion settings (default: ``FusionConfig()``; ``fps`` becomes the recording's).
+    perception_config : ``PerceptionConfig`` of every camera (default: its defaults); without a
+        skin model path, the shipped one for the recording's source (``config_for_source``).
     truth_2d : skip perception and feed the truth's 2D cues (+ ``noise_px`` Gaussian
         noise), to measure fusion apart from perception (studio recordings only).
     """
@@ -126,7 +128,7 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
     else:
         from mocap_rt.perception.pipeline import CameraPerceiver, PerceptionConfig, config_for_source
 
-        pc = perception_config or config_for_source(PerceptionConfig(), rec.source)
+        pc = config_for_source(perception_config or PerceptionConfig(), rec.source)
         perceivers = {nm: CameraPerceiver(rec.rig[nm], rec.backgrounds(nm), pc) for nm in names}
         iters = {nm: rec.iter_frames(nm) for nm in names}
 

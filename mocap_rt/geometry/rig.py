@@ -22,13 +22,13 @@ that reading back gives the same bits.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from mocap_rt.config import FileFormatError, dumps_toml, read_toml
 from mocap_rt.geometry.camera import Camera, look_at, rotation_from_rodrigues
 from mocap_rt.io.files import atomic_write_text
 
@@ -37,7 +37,7 @@ TABLE_KEY = "__table__"
 _CAMERA_KEYS = {"name", "size", "matrix", "distortions", "rotation", "translation", "fisheye"}
 
 
-class RigFileError(ValueError):
+class RigFileError(FileFormatError):
     """A rig file that cannot be read; the message names the file and the field."""
 
 
@@ -89,38 +89,6 @@ class Rig:
 
 
 # ----------------------------------------------------------------------------- TOML
-def _fmt(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    if isinstance(value, (float, np.floating)):
-        v = float(value)
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, np.ndarray):
-        return _fmt(value.tolist())
-    if isinstance(value, (list, tuple)):
-        return "[ " + ", ".join(_fmt(v) for v in value) + "]"
-    raise TypeError(f"cannot write {type(value).__name__} to TOML")
-
-
-def dumps_toml(tables: dict[str, dict]) -> str:
-    """Write a dict of flat tables (values: scalars, strings, nested lists) as TOML."""
-    lines: list[str] = []
-    for table, entries in tables.items():
-        lines.append(f"[{table}]")
-        for key, value in entries.items():
-            lines.append(f"{key} = {_fmt(value)}")
-        lines.append("")
-    return "\n".join(lines)
-
-
 def _camera_table(cam: Camera) -> dict:
     table = {
         "name": cam.name,
@@ -214,11 +182,9 @@ def read_rig(path: str | Path) -> Rig:
     """Read a Pose2Sim/aniposelib rig TOML; errors name the file and the table."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise RigFileError(f"{path}: no such rig file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise RigFileError(f"{path}: not valid TOML: {exc}") from exc
+        data = read_toml(path, "rig file", RigFileError)
+    except FileNotFoundError as exc:
+        raise RigFileError(str(exc)) from None
     metadata = data.pop("metadata", {})
     cameras = [_camera_from_table(k, v, str(path)) for k, v in data.items() if isinstance(v, dict)]
     if not cameras:

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mocap_rt.config import FileFormatError
 from mocap_rt.io.files import atomic_write
 
 log = logging.getLogger(__name__)
@@ -39,7 +40,7 @@ MAX_BVH_VALUE = 1e6
 _FRAMES_FIELD_WIDTH = 12
 
 
-class BvhError(ValueError):
+class BvhError(FileFormatError):
     """A BVH file that cannot be parsed; the message names the file and line."""
 
 

@@ -22,7 +22,6 @@ import csv
 import io
 import logging
 import math
-import tomllib
 import zipfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -30,7 +29,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mocap_rt.geometry.rig import Rig, RigFileError, dumps_toml, read_rig, write_rig
+from mocap_rt.config import FileFormatError, dumps_toml, read_toml
+from mocap_rt.geometry.rig import Rig, RigFileError, read_rig, write_rig
 from mocap_rt.io.files import atomic_write, atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -46,7 +46,7 @@ _MAX_GRAB_SKIP = 8
 _CODEC_EXT = {"MJPG": ".avi", "XVID": ".avi", "FFV1": ".avi", "mp4v": ".mp4"}
 
 
-class RecordingError(ValueError):
+class RecordingError(FileFormatError):
     """A recording that cannot be read; the message names the file and field."""
 
 
@@ -219,11 +219,9 @@ class Recording:
     def _read_meta(self) -> None:
         p = self.path / "recording.toml"
         try:
-            meta = tomllib.loads(p.read_text())
+            meta = read_toml(p, "recording.toml", RecordingError)
         except FileNotFoundError:
             raise RecordingError(f"{p}: missing; {self.path} is not a recording") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise RecordingError(f"{p}: not valid TOML: {exc}") from None
         rec = meta.get("recording")
         if not isinstance(rec, dict):
             raise RecordingError(f"{p}: no [recording] table")

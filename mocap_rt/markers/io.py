@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap_rt.config import FileFormatError
 from mocap_rt.io.files import atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -28,7 +29,7 @@ log = logging.getLogger(__name__)
 UNIT_TO_M = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "in": 0.0254, "inch": 0.0254}
 
 
-class MarkerFileError(ValueError):
+class MarkerFileError(FileFormatError):
     """A marker file that cannot be read; the message names the file and the field."""
 
 

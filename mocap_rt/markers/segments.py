@@ -16,14 +16,15 @@ Unknown keys, segments a joint names but nobody defines, and (with
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+
+from mocap_rt.config import FileFormatError, read_toml
 
 MIN_MARKERS_PER_SEGMENT = 3  # a rigid frame needs three non-collinear points
 
 
-class SegmentError(ValueError):
+class SegmentError(FileFormatError):
     """A segment definition that is malformed or does not match the marker data."""
 
 
@@ -126,14 +127,7 @@ def segments_from_dict(table: dict, source: str = "") -> SegmentSet:
 
 def load_segments(path: str | Path) -> SegmentSet:
     """Read a segment-definition TOML file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such segment definition file")
-    try:
-        table = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise SegmentError(f"{path}: invalid TOML ({exc})") from exc
-    return segments_from_dict(table, str(path))
+    return segments_from_dict(read_toml(path, "segment definition file", SegmentError), str(path))
 
 
 def dumps_segments(segset: SegmentSet) -> str:

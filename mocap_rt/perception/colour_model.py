@@ -24,14 +24,13 @@ from __future__ import annotations
 
 import logging
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numba
 import numpy as np
 
-from mocap_rt.geometry.rig import dumps_toml
+from mocap_rt.config import FileFormatError, dumps_toml, loads_toml, read_toml
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +45,7 @@ GREY_RANGE_QUANTILES = (0.005, 0.995)
 GREY_MARGIN = 10.0
 
 
-class ColourModelError(ValueError):
+class ColourModelError(FileFormatError):
     """A colour-model file or training set that cannot be used; names the file/field."""
 
 
@@ -132,10 +131,10 @@ def save_colour_model(model: ColourModel, path: str | Path) -> None:
 
 
 def loads_colour_model(text: str, where: str = "<string>") -> ColourModel:
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ColourModelError(f"{where}: not valid TOML: {exc}") from None
+    return _colour_model_from_doc(loads_toml(text, where, ColourModelError), where)
+
+
+def _colour_model_from_doc(doc: dict, where: str) -> ColourModel:
     table = doc.get("colour_model")
     if not isinstance(table, dict):
         raise ColourModelError(f"{where}: missing [colour_model] table")
@@ -154,10 +153,7 @@ def loads_colour_model(text: str, where: str = "<string>") -> ColourModel:
 
 
 def load_colour_model(path: str | Path) -> ColourModel:
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"colour model file not found: {path}")
-    return loads_colour_model(path.read_text(), str(path))
+    return _colour_model_from_doc(read_toml(path, "colour model file", ColourModelError), str(path))
 
 
 SHIPPED_MODELS = ("skin", "shoe", "studio_skin")

@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import logging
 import time
-import tomllib
-from dataclasses import dataclass, fields, is_dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from mocap_rt.config import load_dataclass
 from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette, CuePrediction
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
@@ -73,39 +73,10 @@ class PerceptionConfig:
     silhouette_bytes: int = SILHOUETTE_MAX_BYTES  # compact silhouette sent to fusion (packed bits); 0 = none
 
 
-def _from_table(cls, table: dict, where: str):
-    names = {f.name: f for f in fields(cls)}
-    unknown = set(table) - set(names)
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {sorted(unknown)} (known: {sorted(names)})")
-    kwargs = {}
-    for key, value in table.items():
-        default = getattr(cls(), key)
-        if is_dataclass(default):
-            if not isinstance(value, dict):
-                raise ValueError(f"{where}: [{key}] must be a table")
-            kwargs[key] = _from_table(type(default), value, f"{where} [{key}]")
-        else:
-            try:
-                kwargs[key] = type(default)(value)
-            except (TypeError, ValueError):
-                raise ValueError(f"{where}: {key} = {value!r} is not a {type(default).__name__}") from None
-    return cls(**kwargs)
-
-
 def load_perception_config(path: str | Path) -> PerceptionConfig:
-    """Read a ``PerceptionConfig`` from TOML (top-level keys = fields, tables for nested ones).
-
-    Unknown keys are an error naming the file.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"perception config not found: {path}")
-    try:
-        doc = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
-    return _from_table(PerceptionConfig, doc.get("perception", doc), str(path))
+    """Read a ``PerceptionConfig`` from TOML: a ``[perception]`` table, or its fields at the
+    top level (sub-tables for the nested settings). Unknown keys are errors naming the file."""
+    return load_dataclass(PerceptionConfig, path, "perception")
 
 
 def config_for_source(config: PerceptionConfig, source: str) -> PerceptionConfig:

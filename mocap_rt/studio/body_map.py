@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import logging
 import re
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
+from mocap_rt.config import FileFormatError, loads_toml
 from mocap_rt.io.bvh import BvhClip, forward_kinematics, resample_motion
 from mocap_rt.names import JOINT_NAMES
 
@@ -45,7 +45,7 @@ _TERM = re.compile(r"\s*([+-]?)\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s+([^\s+
 _META_KEYS = ("detect", "unit_m", "up")
 
 
-class SkeletonMapError(ValueError):
+class SkeletonMapError(FileFormatError):
     """The map table is malformed or no family matches a clip."""
 
 
@@ -86,10 +86,7 @@ def load_skeleton_maps(path: str | Path | None = None) -> list[SkeletonMap]:
         where = "mocap_rt/data/bvh_maps.toml"
     else:
         text, where = Path(path).read_text(), str(path)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SkeletonMapError(f"{where}: {exc}") from None
+    doc = loads_toml(text, where, SkeletonMapError)
     common = doc.pop("common", {})
     maps = []
     for family, table in doc.items():

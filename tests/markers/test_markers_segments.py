@@ -58,7 +58,7 @@ def test_unknown_markers_are_all_named(tmp_path):
     ('[segments.a]\nmarkers = ["x", "y", "z"]\n[joints.j]\nparent = "a"\n', "needs exactly 'parent' and 'child'"),
     ('[segment.a]\nmarkers = ["x", "y", "z"]\n', "unknown top-level"),
     ('[segments.a]\nmarkers = ["x", "y", "z"]\n', "no \\[joints"),
-    ('[segments.a\n', "invalid TOML"),
+    ('[segments.a\n', "not valid TOML"),
 ])
 def test_malformed_definitions(tmp_path, text, message):
     path = tmp_path / "bad.toml"
