@@ -65,3 +65,28 @@ def test_process_cli_with_perception(recording, tmp_path, capsys):
 def test_process_rejects_a_missing_directory(tmp_path, capsys):
     rc = cli_main(["process", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
     assert rc == 2 and "nope" in capsys.readouterr().err
+
+
+def test_process_config_file_reaches_fusion_and_perception(tmp_path, monkeypatch, capsys):
+    """--config's [fusion] and [perception] tables are what process_recording gets; flags override."""
+    from types import SimpleNamespace
+
+    import mocap_rt.fusion.offline as offline
+
+    got = {}
+
+    def fake(rec, out, config, perception_config, **kw):
+        got.update(config=config, perception=perception_config)
+        return SimpleNamespace(frames=np.zeros(0), timings_ms={}, accuracy=None)
+
+    monkeypatch.setattr(offline, "process_recording", fake)
+    (tmp_path / "rec").mkdir()
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[fusion]\nviews = 'pair'\nik = 'ccd'\n[fusion.filter]\ngate_m = 0.2\n"
+                   "[perception]\nroi_margin_px = 9\n")
+    argv = ["process", str(tmp_path / "rec"), "--out", str(tmp_path / "o"), "--config", str(cfg)]
+    assert cli_main([*argv, "--ik", "analytic"]) == 0
+    assert (got["config"].views, got["config"].ik, got["config"].filter.gate_m) == ("pair", "analytic", 0.2)
+    assert got["perception"].roi_margin_px == 9
+    assert cli_main([*argv[:4], "--overwrite"]) == 0          # no --config: the defaults
+    assert (got["config"].views, got["config"].ik, got["perception"]) == ("all", "analytic", None)
