@@ -37,7 +37,7 @@ from mocap_rt.body.bvh_export import bvh_skeleton_of
 from mocap_rt.body.skeleton import BoneLengths, write_bone_lengths
 from mocap_rt.io.bvh import BvhStreamWriter
 from mocap_rt.io.files import atomic_write
-from nodes.frame_window import FrameWindow
+from nodes.frame_window import RECORD_BEHIND, FrameWindow
 from nodes.messages import Background, Frame, Keys, Pose, Trigger
 from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
 
@@ -247,7 +247,7 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
     stream = RawStream(stream_path, rig, fps) if raw else None
     log.info("recorder: writing %s, %s%s", npz_path, bvh_path, f", {stream_path}" if raw else "")
     inbox: queue.SimpleQueue = queue.SimpleQueue()
-    window = FrameWindow(keys.rig, rt.node)     # only poses of triggered frames near the newest
+    window = FrameWindow(keys.rig, rt.node, behind=RECORD_BEHIND)   # every pose of a triggered frame, even late
 
     def subscriber(msg_type):
         def on_sample(sample) -> None:

@@ -12,7 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mocap_rt.cues import N_CUES, CameraCues, CuePrediction
-from nodes.frame_window import REANCHOR_TRIGGERS, WINDOW_AHEAD, WINDOW_BEHIND, FrameWindow, window_drops
+from nodes.frame_window import (RECORD_BEHIND, REANCHOR_TRIGGERS, WINDOW_AHEAD, WINDOW_BEHIND, FrameWindow,
+                                window_drops)
 from nodes.messages import Cues, Decoder, Pose, Prediction, Trigger
 
 RIG = "studio"
@@ -70,6 +71,21 @@ def test_the_two_attacks_of_issue_14_are_dropped_and_counted():
     # the service goes on: the next frames are accepted
     for f in range(10, 20):
         assert w.accept(trig(f)) and w.accept(pose(f, trig(f).t_mono_ns))
+
+
+def test_the_recorder_window_keeps_a_pose_delayed_by_a_busy_host():
+    """A starved recorder / monitor sees a pose after 100 newer triggers: live consumers drop it as
+    stale, the recorder keeps it (it names a triggered frame and carries its stamp); a pose older
+    than the recorder's own bound, or of a frame never triggered, is still dropped."""
+    live, rec = FrameWindow(RIG), FrameWindow(RIG, behind=RECORD_BEHIND)
+    for f in range(RECORD_BEHIND + 150):
+        live.accept(trig(f))
+        rec.accept(trig(f))
+    late = RECORD_BEHIND + 49 - 100
+    assert live.accept(pose(late, trig(late).t_mono_ns)) == [] and live.drops["stale"] == 1
+    assert rec.accept(pose(late, trig(late).t_mono_ns)) != []
+    assert rec.accept(pose(10, trig(10).t_mono_ns)) == [] and rec.drops["stale"] == 1
+    assert rec.accept(pose(late, trig(late).t_mono_ns + 1)) == [] and rec.drops["stamp"] == 1
 
 
 def test_each_reason():
