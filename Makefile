@@ -43,7 +43,8 @@ $(STAMP): pyproject.toml
 	rm -f $(GST_STAMP)
 	touch $(STAMP)
 
-demo: setup
+# the demo does not wait for GStreamer's bindings (PyGObject, built from source: ~1 min)
+demo: $(STAMP) kernels
 	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
 
 test: system-deps setup
