@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"gst bench skipped: {exc}")
         return 0
     rows = []
-    for codec, decoders in (("MJPG", ("jpegdec", "avdec_mjpeg")), ("FFV1", ("avdec_ffv1",))):
+    for codec, decoders in (("MJPG", ("avdec_mjpeg", "jpegdec")), ("FFV1", ("avdec_ffv1",))):
         rec = recording(args.work / f"walk_{codec.lower()}", codec)
         n = Recording(rec).segment_frames
         ref = cluster(rec, f"replay:{rec}", args.work / f"run_{codec}_replay")

@@ -46,6 +46,11 @@ log = logging.getLogger(__name__)
 
 SINK_NAME = "mocap_rt_sink"
 APPENDED = f" ! videoconvert ! video/x-raw,format=BGR ! appsink name={SINK_NAME}"
+# FFmpeg's MJPEG decoder (what cv2.VideoCapture decodes recordings with): its planar 4:2:0 goes
+# to the appsink and is converted like OpenCV's swscale does (mocap_rt.io.yuv), so a recording
+# played through GStreamer gives the very pixels of replay:
+APPENDED_YUV = f" ! videoconvert ! video/x-raw,format=I420 ! appsink name={SINK_NAME}"
+YUV_DECODERS = ("avdec_mjpeg",)
 STATE_TIMEOUT_S = 10.0
 _gst = None
 
@@ -74,7 +79,10 @@ def pipeline_for(template: str, camera: str, index: int) -> str:
     desc = str(template).replace("{camera}", camera).replace("{index}", str(index)).strip()
     if not desc:
         raise ValueError("--source gst: empty pipeline")
-    return desc if "appsink" in desc else desc + APPENDED
+    if "appsink" in desc:
+        return desc
+    last = desc.rsplit("!", 1)[-1].split()
+    return desc + (APPENDED_YUV if last and last[0] in YUV_DECODERS else APPENDED)
 
 
 class GstPipeline:
@@ -120,7 +128,8 @@ class GstPipeline:
 
     def pull(self, timeout_s: float) -> tuple[np.ndarray, int, int] | None:
         """(image (H, W, 3) uint8 BGR, capture t_mono_ns, t_wall_ns), or None at end of stream
-        / timeout. A pipeline error raises RuntimeError with GStreamer's message."""
+        / timeout. The appsink gets BGR, or I420 converted as OpenCV's FFmpeg backend does
+        (``mocap_rt.io.yuv``). A pipeline error raises RuntimeError with GStreamer's message."""
         Gst, GstVideo = gst_modules()
         sample = self.sink.try_pull_sample(int(timeout_s * Gst.SECOND))
         if sample is None:
@@ -132,8 +141,8 @@ class GstPipeline:
                     raise RuntimeError(f"--source gst:{self.description!r}: {err.message} ({debug})")
             return None
         info = GstVideo.VideoInfo.new_from_caps(sample.get_caps())
-        if info.finfo.format != GstVideo.VideoFormat.BGR:
-            raise RuntimeError(f"--source gst:{self.description!r}: appsink caps must be format=BGR")
+        if info.finfo.format not in (GstVideo.VideoFormat.BGR, GstVideo.VideoFormat.I420):
+            raise RuntimeError(f"--source gst:{self.description!r}: appsink caps must be format=BGR or I420")
         if (info.width, info.height) != self.size:
             raise RuntimeError(f"--source gst:{self.description!r}: frames are {info.width}x{info.height}, "
                                f"the rig camera is {self.size[0]}x{self.size[1]}")
@@ -142,14 +151,36 @@ class GstPipeline:
         if not ok:
             raise RuntimeError(f"--source gst:{self.description!r}: cannot map a buffer")
         try:
-            rows = np.frombuffer(mapped.data, np.uint8, count=info.stride[0] * info.height)
-            image = rows.reshape(info.height, info.stride[0])[:, :info.width * 3].reshape(
-                info.height, info.width, 3).copy()
+            if info.finfo.format == GstVideo.VideoFormat.I420:
+                image = self._i420(info, mapped.data)
+            else:
+                rows = np.frombuffer(mapped.data, np.uint8, count=info.stride[0] * info.height)
+                image = rows.reshape(info.height, info.stride[0])[:, :info.width * 3].reshape(
+                    info.height, info.width, 3).copy()
         finally:
             buf.unmap(mapped)
         t_mono, t_wall = self._stamps(buf)
         self.frames += 1
         return image, t_mono, t_wall
+
+    def _i420(self, info, data) -> np.ndarray:
+        """BGR of a mapped I420 buffer (planes at the caps' offsets and strides)."""
+        from mocap_rt.io.yuv import i420_to_bgr
+
+        _, GstVideo = gst_modules()
+        c = info.colorimetry
+        full, video = (GstVideo.VideoColorRange(n) for n in (1, 2))       # 0_255, 16_235
+        matrix = {GstVideo.VideoColorMatrix.BT601: "bt601", GstVideo.VideoColorMatrix.BT709: "bt709"}.get(c.matrix)
+        if matrix is None or c.range not in (full, video):
+            raise RuntimeError(f"--source gst:{self.description!r}: I420 colorimetry {c.to_string()} "
+                               f"is not BT.601/BT.709 at full or video range")
+        buf = np.frombuffer(data, np.uint8)
+        chroma = ((info.height + 1) // 2, (info.width + 1) // 2)
+        planes = []
+        for p, (h, w) in enumerate(((info.height, info.width), chroma, chroma)):
+            stride, off = info.stride[p], info.offset[p]
+            planes.append(buf[off:off + stride * h].reshape(h, stride)[:, :w])
+        return i420_to_bgr(*planes, matrix=matrix, full_range=c.range == full)
 
     def _stamps(self, buf) -> tuple[int, int]:
         """Capture time of ``buf``: its PTS (running time) + base time on the pipeline clock,

@@ -75,6 +75,20 @@ def test_file_pipeline_plays_a_recorded_segment_frame_by_frame(walk):
     assert max(d.max() for d in diffs) <= 8 and np.mean([d.mean() for d in diffs]) < 1.0
 
 
+def test_avdec_mjpeg_frames_are_the_pixels_of_opencv(walk):
+    """FFmpeg's MJPEG decoder in GStreamer + the swscale-exact I420 -> BGR of mocap_rt.io.yuv:
+    every frame equals cv2.VideoCapture's (the decoder of replay:), bit for bit."""
+    rec = Recording(walk)
+    src = open_source(f"gst:filesrc location={walk}/video/{{camera}}/seg_000000.avi ! avidemux ! avdec_mjpeg",
+                      rec.rig["cam_3"], backgrounds_from=str(walk))
+    try:
+        for k in range(rec.segment_frames):
+            src.prefetch(k)
+            np.testing.assert_array_equal(src.grab(k).image, rec.read_frame("cam_3", k), err_msg=f"frame {k}")
+    finally:
+        src.close()
+
+
 def test_ieee1394_and_bad_pipelines_fail_with_clear_errors():
     with pytest.raises(ValueError, match="nosuchsrc"):
         open_source("gst:nosuchsrc", _camera())
@@ -99,32 +113,16 @@ def _run(rec_dir, source, out, **kw):
     return stats, np.load(out / "rec" / "poses.npz")
 
 
-@pytest.fixture(scope="module")
-def walk_ffv1(tmp_path_factory, data_dir):
-    """1 s (one segment) of the walk, 6 cameras 320x240, stored losslessly (FFV1)."""
-    from service_helpers import WALK_CLIP
-
-    from mocap_rt.studio.synth import make_rig, synthesize
-
-    out = tmp_path_factory.mktemp("ffv1") / "walk_ffv1"
-    synthesize(data_dir / WALK_CLIP, out, rig=make_rig(n_cameras=6, size=(320, 240)), seconds=1.0,
-               truth_masks=False, codec="FFV1")
-    return out
-
-
 @pytest.mark.slow
-def test_cluster_through_a_file_pipeline_gives_the_poses_of_replay(walk_ffv1, tmp_path):
-    """Six workers each play their camera's recorded segment through filesrc -> avidemux ->
-    avdec_ffv1 -> appsink; fusion must find the poses ``replay:`` finds on the same frames.
-    (Lossless segments: GStreamer's frames are bit-identical to OpenCV's, so any difference
-    is the path's. With MJPG segments jpegdec and OpenCV's FFmpeg decoder round differently
-    by 1-5 levels, which perception does not ignore: ``python -m bench.bench_gst`` measures it.)
-    Both runs trigger at a fifth of the recording's rate with a whole period as the deadline,
-    so that every camera answers every frame even on a loaded machine."""
-    walk = walk_ffv1
+def test_cluster_through_a_file_pipeline_gives_the_poses_of_replay(walk, tmp_path):
+    """Six workers each play their camera's recorded MJPG segment through filesrc -> avidemux
+    -> avdec_mjpeg -> appsink (I420, converted as OpenCV's swscale does); fusion must find the
+    poses ``replay:`` finds on the same frames. Both runs trigger at a fifth of the
+    recording's rate with a whole period as the deadline, so that every camera answers every
+    frame even on a loaded machine."""
     seg = Recording(walk).segment_frames
     _, ref = _run(walk, f"replay:{walk}", tmp_path / "replay")
-    stats, got = _run(walk, f"gst:filesrc location={walk}/video/{{camera}}/seg_000000.avi ! avidemux ! avdec_ffv1",
+    stats, got = _run(walk, f"gst:filesrc location={walk}/video/{{camera}}/seg_000000.avi ! avidemux ! avdec_mjpeg",
                       tmp_path / "gst", backgrounds_from=walk, duration_s=(seg + 8) / (30 * SPEED))
     assert all(n["restarts"] == 0 for n in stats["nodes"].values())
     common = np.intersect1d(ref["frames"][ref["frames"] < seg], got["frames"][got["frames"] < seg])
