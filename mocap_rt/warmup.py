@@ -219,6 +219,22 @@ def exercise(motion: Path | None, work: Path, rec: Path | None = None) -> None:
         tracker.predict(f + 1)
 
 
+def exercise_outputs() -> None:
+    """The kernels off the frame path: the VMC stream's humanoid conversion and the
+    GStreamer sources' I420 -> BGR (a first pose or frame must not wait for a compilation)."""
+    import numpy as np
+
+    from mocap_rt.body.bvh_export import bvh_frame
+    from mocap_rt.body.humanoid import HumanoidRig, humanoid_pose_from_bvh_row
+    from mocap_rt.body.skeleton import body_model
+    from mocap_rt.io.yuv import i420_to_bgr
+
+    model = body_model(None, "paper")
+    humanoid_pose_from_bvh_row(HumanoidRig.of(model), model, bvh_frame(model, np.zeros(3), np.zeros((20, 3))))
+    chroma = np.zeros((1, 2), np.uint8)
+    i420_to_bgr(np.zeros((2, 4), np.uint8), chroma, chroma)
+
+
 def _say(msg: str) -> None:
     print(msg, flush=True)
 
@@ -241,6 +257,7 @@ def ensure_warm(motion: Path | None = None, force: bool = False, log=_say, rec: 
         clear_cache(dispatchers)               # callers' caches may hold a changed callee
         with tempfile.TemporaryDirectory(prefix="mocap-rt-warmup-") as tmp:
             exercise(motion, Path(tmp), rec)
+        exercise_outputs()
         compiled, loaded = _compiled(dispatchers)
         stamp = {"digest": digest, "compiled": compiled, "loaded": loaded,
                  "kernels": len(dispatchers), "seconds": round(time.perf_counter() - t0, 1),

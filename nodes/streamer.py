@@ -21,21 +21,46 @@ import socket
 import sys
 import threading
 import time
-from collections import deque
-
 import numpy as np
 
 from mocap_rt.body.humanoid import HumanoidRig, humanoid_pose_from_bvh_row
 from mocap_rt.body.skeleton import BoneLengths, body_model
-from mocap_rt.io.vmc import parse_vmc_target, vmc_bundle
+from mocap_rt.io.vmc import VmcEncoder, parse_vmc_target
 from nodes.frame_window import FrameWindow
 from nodes.messages import Pose, Trigger
-from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, node_session, setup_logging
+from nodes.runtime import STATUS_PERIOD_S, IdleGC, NodeRuntime, base_parser, load_rig, node_session, setup_logging
 from nodes.transport import direct_callback
 
 log = logging.getLogger(__name__)
 
 WINDOW = 3600         # poses over which the status percentiles are taken (2 min at 30 fps)
+STATS_PERIOD_S = STATUS_PERIOD_S / 2
+
+
+class LatencyWindow:
+    """The last ``WINDOW`` (added, publication -> sent) latencies, ms, in a preallocated array.
+    Percentiles are taken on the callback thread right after a bundle has left, at most every
+    ``STATS_PERIOD_S`` (the status loop used to copy and sort 3600-entry deques five times a
+    second, holding the GIL for a millisecond or more that a pose arriving then waited for)."""
+
+    def __init__(self, n: int = WINDOW) -> None:
+        self._a = np.zeros((n, 2))
+        self._n = 0
+        self._lock = threading.Lock()
+
+    def add(self, added_ms: float, pub_ms: float) -> None:
+        with self._lock:
+            self._a[self._n % len(self._a)] = added_ms, pub_ms
+            self._n += 1
+
+    def percentiles(self) -> dict[str, float]:
+        with self._lock:
+            a = self._a[:min(self._n, len(self._a))].copy()
+        if not len(a):
+            return {}
+        p50, p99 = np.percentile(a[:, 0], (50, 99))
+        return {"added_ms_p50": float(p50), "added_ms_p99": float(p99),
+                "pub_to_send_ms_p99": float(np.percentile(a[:, 1], 99))}
 
 
 class VmcSender:
@@ -46,24 +71,26 @@ class VmcSender:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.t0 = time.monotonic()
         self._bones: bytes | None = None
-        self._model = self._rig = None
+        self._model = self._rig = self._encoder = None
         self.sent = 0
         self.send_errors = 0
 
-    def bundle(self, pose: Pose) -> bytes:
-        """The bundle of ``pose``; ValueError for a pose that cannot be converted."""
+    def bundle(self, pose: Pose) -> bytearray:
+        """The bundle of ``pose`` (a buffer reused by the next call); ValueError for a pose that
+        cannot be converted."""
         key = np.asarray(pose.bones, np.float64).tobytes()
         if key != self._bones:                    # once per session: the subject's lengths
             self._model = body_model(BoneLengths.from_array(pose.bones), "paper")
             self._rig = HumanoidRig.of(self._model)
+            self._encoder = VmcEncoder(self._rig.local_positions)
             self._bones = key
         row = np.asarray(pose.bvh_frame, np.float64)
         if not np.isfinite(row).all():
             raise ValueError(f"pose {pose.frame}: BVH row has non-finite values")
         hp = humanoid_pose_from_bvh_row(self._rig, self._model, row)
-        return vmc_bundle(hp, time.monotonic() - self.t0)
+        return self._encoder.encode_pose(hp, time.monotonic() - self.t0)
 
-    def send(self, payload: bytes) -> bool:
+    def send(self, payload: bytes | bytearray) -> bool:
         try:
             self.sock.sendto(payload, self.target)
         except OSError as exc:                    # no route, buffer full ...: drop, count, go on
@@ -79,9 +106,8 @@ class VmcSender:
 
 def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
     """Stream until ``rt.stop``."""
-    added: deque[float] = deque(maxlen=WINDOW)
-    pub_to_send: deque[float] = deque(maxlen=WINDOW)
-    lock = threading.Lock()            # the callback appends on Zenoh's thread
+    lat = LatencyWindow()
+    stats_t = [0.0]                    # when the percentiles were last taken
     idle_gc = IdleGC()                 # collections after a bundle is sent, never before
 
     window = FrameWindow(keys.rig, rt.node)     # only poses of triggered frames near the newest
@@ -108,24 +134,21 @@ def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
             rt.drops += 1
             return
         ms = (time.perf_counter() - t_recv) * 1e3
-        with lock:
-            added.append(ms)
-            pub_to_send.append((time.monotonic_ns() - msg.t_pub_mono_ns) / 1e6)
+        lat.add(ms, (time.monotonic_ns() - msg.t_pub_mono_ns) / 1e6)
         rt.meter.add(ms)
-        idle_gc.idle()
+        idle_gc.idle()                 # the bundle has left: now the housekeeping
+        now = time.monotonic()
+        if now - stats_t[0] >= STATS_PERIOD_S:
+            stats_t[0] = now
+            rt.extra.update(lat.percentiles())
 
     idle_gc.start()
     subs = [session.declare_subscriber(keys.pose, direct_callback(on_pose)),
             session.declare_subscriber(keys.trigger, direct_callback(on_trigger))]
     rt.publish_status("running", force=True)
     try:
-        while not rt.stop.wait(0.2):
+        while not rt.stop.wait(STATUS_PERIOD_S / 2):
             rt.extra.update(sent=sender.sent, send_errors=sender.send_errors, **window.counters())
-            with lock:
-                a, p = np.array(added), np.array(pub_to_send)
-            if a.size:
-                rt.extra.update(added_ms_p50=float(np.percentile(a, 50)), added_ms_p99=float(np.percentile(a, 99)),
-                                pub_to_send_ms_p99=float(np.percentile(p, 99)))
             rt.publish_status()
     finally:
         for sub in subs:

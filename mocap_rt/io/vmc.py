@@ -21,6 +21,7 @@ import ipaddress
 import socket
 from functools import lru_cache
 
+import numpy as np
 from pythonosc.osc_bundle_builder import IMMEDIATELY
 from pythonosc.parsing import osc_types
 
@@ -69,6 +70,51 @@ def vmc_bundle(pose: HumanoidPose, time_s: float) -> bytes:
     for c in contents:
         out += [osc_types.write_int(len(c)), c]
     return b"".join(out)
+
+
+class VmcEncoder:
+    """``vmc_bundle`` for one skeleton at a fraction of the cost, for the stream's hot path.
+
+    Per skeleton (``local_positions`` (B, 3) metres, Unity axes, e.g. ``HumanoidRig.local_positions``)
+    the whole bundle is built once by ``vmc_bundle`` (python-osc's writers); per pose only
+    the float fields that change — root position, bone rotations, time — are written in
+    place, as big-endian float32 like python-osc writes them, so ``encode`` returns the very
+    bytes of ``vmc_bundle`` (tested). Not thread-safe: one encoder per sending thread.
+    """
+
+    def __init__(self, local_positions: np.ndarray) -> None:
+        self.local_positions = np.asarray(local_positions, np.float64)
+        n = len(BONE_NAMES)
+        if self.local_positions.shape != (n, 3):
+            raise ValueError(f"VmcEncoder: local_positions must be ({n}, 3), got {self.local_positions.shape}")
+        rest = HumanoidPose(np.zeros(3), np.array([0.0, 0, 0, 1]), self.local_positions, np.tile([0.0, 0, 0, 1], (n, 1)))
+        self._buf = bytearray(vmc_bundle(rest, 0.0))
+        self._f32 = np.frombuffer(self._buf, ">f4")            # every field is 4-byte aligned
+        ends, pos = [], 16                                      # "#bundle\0" + time tag
+        while pos < len(self._buf):
+            size = int.from_bytes(self._buf[pos:pos + 4], "big")
+            ends.append((pos + 4 + size) // 4)                  # message end, in float32 slots
+            pos += 4 + size
+        root = ends[0] - 7                                      # Root/Pos: "root" p.xyz q.xyzw
+        self._root = np.arange(root, root + 3)
+        self._quats = (np.array(ends[1:1 + n])[:, None] - 4 + np.arange(4)).reshape(-1)   # (B * 4,)
+        self._time = ends[-1] - 1                               # /VMC/Ext/T's one float
+
+    def encode(self, root_position: np.ndarray, local_rotations: np.ndarray, time_s: float) -> bytearray:
+        """The bundle of a pose: root_position (3,) pelvis, Unity axes, metres; local_rotations
+        (B, 4) x, y, z, w in ``BONE_NAMES`` order; ``time_s`` seconds. The returned buffer is
+        reused by the next call (send it before encoding the next pose)."""
+        self._f32[self._root] = root_position
+        self._f32[self._quats] = np.asarray(local_rotations).reshape(-1)
+        self._f32[self._time] = time_s
+        return self._buf
+
+    def encode_pose(self, pose: HumanoidPose, time_s: float) -> bytearray:
+        """``encode`` of a ``HumanoidPose`` of this skeleton (ValueError for another skeleton's)."""
+        if pose.local_positions is not self.local_positions and not np.array_equal(pose.local_positions,
+                                                                                   self.local_positions):
+            raise ValueError("VmcEncoder: the pose's bone positions are not this encoder's skeleton")
+        return self.encode(pose.root_position, pose.local_rotations, time_s)
 
 
 def parse_vmc_target(spec: str, allow_remote: bool = False) -> tuple[str, int]:

@@ -8,7 +8,7 @@ from mocap_rt.body.bvh_export import bvh_frame
 from mocap_rt.body.humanoid import BONE_NAMES, HumanoidRig, humanoid_pose, humanoid_pose_from_bvh_row
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import J, BoneLengths, body_model
-from mocap_rt.io.vmc import parse_vmc_target, vmc_bundle
+from mocap_rt.io.vmc import VmcEncoder, parse_vmc_target, vmc_bundle
 from osc_reader import JOINT, bones_of, qrot, receiver_fk, unity
 
 MODEL = body_model(BoneLengths(), "paper")
@@ -111,3 +111,27 @@ def test_fast_bvh_path_equals_the_matrix_reference():
         sign = np.sign(np.sum(ref.local_rotations * fast.local_rotations, axis=1))[:, None]
         np.testing.assert_allclose(fast.local_rotations * sign, ref.local_rotations, atol=1e-9)
         np.testing.assert_allclose(fast.root_position, ref.root_position, atol=1e-12)
+
+
+def test_encoder_writes_the_bytes_of_vmc_bundle():
+    """The stream's in-place encoder (template built by python-osc's writers, floats patched)
+    gives byte for byte what ``vmc_bundle`` builds, pose after pose on one buffer, and the
+    independent reader decodes the pose it was given."""
+    rng = np.random.default_rng(4)
+    model = body_model(BoneLengths.from_array(BoneLengths().as_array() * 1.07), "paper")
+    rig = HumanoidRig.of(model)
+    enc = VmcEncoder(rig.local_positions)
+    for k in range(10):
+        root = rng.uniform(-2, 2, 3)
+        hp = humanoid_pose_from_bvh_row(rig, model, bvh_frame(model, root, rng.uniform(-2, 2, (20, 3))))
+        data = enc.encode_pose(hp, 0.1 * k)
+        assert bytes(data) == vmc_bundle(hp, 0.1 * k)
+        bones, root_msg, other = bones_of(bytes(data))
+        np.testing.assert_allclose(root_msg[1:4], unity(root), atol=1e-6)
+        np.testing.assert_allclose([bones[n][1] for n in BONE_NAMES], hp.local_rotations, atol=1e-7)
+        np.testing.assert_allclose([bones[n][0] for n in BONE_NAMES], rig.local_positions, atol=1e-7)
+        assert other["/VMC/Ext/T"] == [pytest.approx(0.1 * k)]
+    with pytest.raises(ValueError, match="skeleton"):
+        enc.encode_pose(humanoid_pose_from_bvh_row(RIG, MODEL, bvh_frame(MODEL, root, np.zeros((20, 3)))), 0.0)
+    with pytest.raises(ValueError, match="local_positions"):
+        VmcEncoder(np.zeros((3, 3)))
