@@ -16,7 +16,7 @@ same kernels at once. ``ensure_warm`` does it once instead, before anything else
   ``is_warm()`` compares it without importing numba (milliseconds).
 
 numba invalidates a cached kernel when its own file changes, but not when a kernel it calls
-in another file changed (``jacobian`` calls ``ccd``'s, ``analytic`` calls ``kinematics``'):
+in another file changed (``ik_kernels`` and ``analytic`` call ``kinematics``'):
 so when the digest differs, every kernel's cache entry is dropped first and all are built
 again. The cache lives where numba puts it: ``__pycache__`` beside each source file, or
 ``$NUMBA_CACHE_DIR`` when set (every process started with that environment shares it).

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap_rt.body.ccd import IkResult
+from mocap_rt.body.ik_problem import IkResult
 from mocap_rt.body.refit import SEGMENTS, pose_from_refit, refit_skeleton
 from mocap_rt.body.skeleton import END_EFFECTORS, BodyModel, BoneLengths, body_model, read_bone_lengths
 from mocap_rt.geometry.camera import Camera

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from mocap_rt.body.analytic import _LIMB_JOINTS, AnalyticConfig, _analytic, _angles_from_frames, _cross, _rot_about
-from mocap_rt.body.kinematics import _fk
+from mocap_rt.body.kinematics import fk_kernel
 from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SilhouetteTargets, body_capsules, capsules_cost, \
     pose_points
 from mocap_rt.body.skeleton import J, BodyModel
@@ -63,7 +63,7 @@ def _evaluate(cues, axes, swivel, lengths, poles, foot_rest, limb_joints, parent
                 viol += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
     sil = 0.0
     if w_sil > 0.0:
-        _fk(parents, offsets, rest_local, pelvis, ang, pos, rot)
+        fk_kernel(parents, offsets, rest_local, pelvis, ang, pos, rot)
         pose_points(pos, rot, foot_pitch, points)
         body_capsules(points, A, B)
         sil = capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline) * 1e4

@@ -51,7 +51,7 @@ def euler_xyz_from_matrix(R: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _mul3(A, B, out):
+def mul3(A, B, out):
     """out = A @ B for 3x3 (written out: numba's ``@`` on 3x3 goes through BLAS, slower)."""
     for a in range(3):
         for b in range(3):
@@ -59,17 +59,18 @@ def _mul3(A, B, out):
 
 
 @njit(cache=True, nogil=True)
-def _fk(parents, offsets, rest_local, root_pos, angles, pos, rot):
+def fk_kernel(parents, offsets, rest_local, root_pos, angles, pos, rot):
+    """FK into pos (J, 3) / rot (J, 3, 3) of the body arrays (``BodyModel`` fields); see module doc."""
     M = np.empty((3, 3))
     for j in range(parents.shape[0]):
         E = euler_xyz_matrix(angles[j, 0], angles[j, 1], angles[j, 2])
         p = parents[j]
         if p < 0:
-            _mul3(rest_local[j], E, rot[j])
+            mul3(rest_local[j], E, rot[j])
             pos[j] = root_pos
         else:
-            _mul3(rest_local[j], E, M)
-            _mul3(rot[p], M, rot[j])
+            mul3(rest_local[j], E, M)
+            mul3(rot[p], M, rot[j])
             for a in range(3):
                 pos[j, a] = pos[p, a] + rot[p, a, 0] * offsets[j, 0] + rot[p, a, 1] * offsets[j, 1] \
                     + rot[p, a, 2] * offsets[j, 2]
@@ -87,7 +88,7 @@ def forward_kinematics(model: BodyModel, root_pos: np.ndarray, angles: np.ndarra
         raise ValueError(f"angles must have shape ({N_JOINTS}, 3), got {angles.shape}")
     root_pos = np.ascontiguousarray(root_pos, dtype=np.float64).reshape(3)
     pos, rot = out if out is not None else (np.empty((N_JOINTS, 3)), np.empty((N_JOINTS, 3, 3)))
-    _fk(model.parents, model.offsets, model.rest_local, root_pos, angles, pos, rot)
+    fk_kernel(model.parents, model.offsets, model.rest_local, root_pos, angles, pos, rot)
     return pos, rot
 
 
@@ -116,9 +117,3 @@ def angles_from_quaternions(quats: np.ndarray) -> np.ndarray:
     """(J, 4) quaternions (x, y, z, w) -> (J, 3) X-Y-Z angles, radians."""
     return Rotation.from_quat(np.asarray(quats, dtype=np.float64)).as_euler("XYZ")
 
-
-def end_effector_frames(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray,
-                        effectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Positions (E, 3) and frames (E, 3, 3) of the joints ``effectors`` (E,) int."""
-    pos, rot = forward_kinematics(model, root_pos, angles)
-    return pos[effectors], rot[effectors]

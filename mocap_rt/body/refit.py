@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap_rt.body.ccd import CcdConfig, IkResult, solve_ccd
+from mocap_rt.body.ccd import CcdConfig, solve_ccd
+from mocap_rt.body.ik_problem import IkResult
 from mocap_rt.body.kinematics import angles_from_frames, forward_kinematics
 from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BodyModel, BoneLengths
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from mocap_rt.body.analytic import AnalyticConfig, _two_link, analytic_pose, body_axes, pan_angle
-from mocap_rt.body.ccd import CcdConfig, chain_weights, solve_ccd
+from mocap_rt.body.ccd import CcdConfig, solve_ccd
+from mocap_rt.body.ik_problem import chain_weights
 from mocap_rt.body.jacobian import JacobianConfig, solve_jacobian
 from mocap_rt.body.kinematics import euler_xyz_matrix, forward_kinematics
 from mocap_rt.body.skeleton import END_EFFECTORS, J, body_model
