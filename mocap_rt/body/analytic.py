@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mocap_rt.body.kinematics import euler_xyz_from_matrix, forward_kinematics
+from mocap_rt.body.kinematics import euler_xyz_from_matrix
 from mocap_rt.body.skeleton import J, N_JOINTS, BodyModel
 
 C_HEAD, C_HAND_L, C_HAND_R, C_FOOT_L, C_FOOT_R, C_TORSO = range(6)
@@ -400,8 +400,3 @@ def refine_swivel(model: BodyModel, cues: np.ndarray, axes: np.ndarray, previous
                    np.radians(config.swivel_step_deg), int(config.swivel_search_deg // config.swivel_step_deg),
                    prev, config.swivel_change_cost, config.swivel_prior_cost, out)
     return out
-
-
-def pose_joints(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """(J, 3) joint positions, metres, world."""
-    return forward_kinematics(model, root_pos, angles)[0]

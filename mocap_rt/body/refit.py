@@ -24,7 +24,7 @@ import numpy as np
 
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.ik_problem import IkResult
-from mocap_rt.body.kinematics import angles_from_frames, forward_kinematics
+from mocap_rt.body.kinematics import angles_from_frames
 from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BodyModel, BoneLengths
 
 # Chains walked from each end effector: (joint reached, segment length attribute).
@@ -153,8 +153,3 @@ def pose_from_refit(model: BodyModel, P: np.ndarray, effectors: dict[str, np.nda
     goals = np.array([effectors[n] for n in END_EFFECTORS], dtype=np.float64)
     res = solve_ccd(model, root, angles, eff, goals, reference=angles, solve_root=True, config=config)
     return root, res
-
-
-def joints_of(model: BodyModel, root: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """(J, 3) joint positions of a pose."""
-    return forward_kinematics(model, root, angles)[0]

@@ -99,14 +99,6 @@ class BoneLengths:
             raise ValueError(f"bone lengths: expected {len(names)} values, got {v.shape[0]}")
         return cls(**{n: float(x) for n, x in zip(names, v)})
 
-    @property
-    def leg_m(self) -> float:
-        return self.thigh_m + self.shank_m
-
-    @property
-    def arm_m(self) -> float:
-        return self.upper_arm_m + self.forearm_m
-
 
 def read_bone_lengths(path: str | Path) -> BoneLengths:
     """Read ``[bones]`` from a TOML file; unknown or bad keys raise ``FileFormatError`` naming

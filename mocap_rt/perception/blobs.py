@@ -114,9 +114,6 @@ class BlobTracker:
         self._kp_nomirror[6] = 0
         self._gate_params = np.array([p.gate_min_px, p.gate_radius_factor, p.gate_unknown_px, p.gate_speed_factor])
 
-    def reset(self) -> None:
-        self.__init__(self.roles, self.params)
-
     def reseat(self, k: int, xy: np.ndarray, radius_px: float) -> None:
         """Put blob k's track at ``xy`` (2,) image px, at rest, with semi-major axis
         ``radius_px`` (a scene-level correction); another blob tracked on that spot loses its
@@ -130,12 +127,6 @@ class BlobTracker:
         self._vel[k] = 0.0
         self._coast[k] = 0
         self._radius[k] = radius_px
-
-    def predict_2d(self) -> tuple[np.ndarray, np.ndarray]:  # for callers; step uses predict_gates
-        """Constant-velocity 2D prediction: (xy (K, 2) NaN where untracked, semi-major axis (K,) px)."""
-        xy = self._xy + self._vel * (1 + self._coast)[:, None]
-        xy[self._coast > self.params.max_coast_frames] = np.nan
-        return xy, self._radius
 
     # ------------------------------------------------------------------ per frame
     def step(self, skin_roi: np.ndarray, roi_xy: tuple[int, int], person_box_roi: tuple[int, int, int, int],

@@ -118,10 +118,6 @@ class SkeletonGeometry:
         return float(np.linalg.norm(self.offsets[self.index(name)]))
 
     @property
-    def leg_m(self) -> float:
-        return self.length("LeftLeg") + self.length("LeftFoot")
-
-    @property
     def arm_m(self) -> float:
         """Shoulder -> hand centre, straight arm."""
         return self.length("LeftForeArm") + 1.45 * self.length("LeftHand")
