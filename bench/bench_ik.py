@@ -6,9 +6,10 @@ effectors (head, hands, feet) by up to ~60 cm and ~55 deg, then each solver brin
 them back to the simulated effector positions and orientations. The pelvis is fixed.
 Prints, per solver: per end-effector position / orientation error (mean and max),
 iterations (CCD sweeps + DLS iterations for the polished rows), time per solve
-(median, p95) and the share of solves meeting the target (every effector within 1 mm
-and 0.5 deg). The default CCD is the hybrid (``CcdConfig.polish``); the ablation rows
-("without ...", thesis, plain) are pure CCD (``polish=False``).
+(median, p95, and the median over the yardstick, ``bench.yardstick``) and the share of
+solves meeting the target (every effector within 1 mm and 0.5 deg). The default CCD is
+the hybrid (``CcdConfig.polish``); the ablation rows ("without ...", thesis, plain) are
+pure CCD (``polish=False``).
 
     python -m bench ik            # or: python -m bench.bench_ik --trials 100
 """
@@ -21,6 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from bench.yardstick import header, yardstick_ms
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.jacobian import JacobianConfig, solve_jacobian
 from mocap_rt.body.kinematics import forward_kinematics
@@ -102,16 +104,18 @@ def main(argv: list[str] | None = None) -> int:
     for _, kind, cfg in solvers()[:1] + solvers()[-1:]:
         run(trials[:1], model, "", kind, cfg, effectors)
     print(f"target: every effector < {TARGET_MM} mm and < {TARGET_DEG} deg, < {TARGET_MS} ms per solve")
-    head = f"{'solver':36s} {'ok%':>5s} {'iter':>5s} {'ms med':>7s} {'ms p95':>7s}  " + "  ".join(
+    ys = yardstick_ms()
+    print(header(ys))
+    head = f"{'solver':36s} {'ok%':>5s} {'iter':>5s} {'ms med':>7s} {'x yd':>6s} {'ms p95':>7s}  " + "  ".join(
         f"{n:>15s}" for n in END_EFFECTORS)
     print(head)
-    print(f"{'':36s} {'':>5s} {'med':>5s} {'':>7s} {'':>7s}  " + "  ".join(f"{'mm mean/max deg':>15s}" for _ in END_EFFECTORS))
+    print(f"{'':36s} {'':>5s} {'med':>5s} {'':>7s} {'':>6s} {'':>7s}  " + "  ".join(f"{'mm mean/max deg':>15s}" for _ in END_EFFECTORS))
     for name, kind, cfg in solvers():
         perr, oerr, its, ms = run(trials, model, name, kind, cfg, effectors)
         ok = ((perr < TARGET_MM) & (oerr < TARGET_DEG)).all(axis=1)
         cells = [f"{perr[:, e].mean():5.2f}/{perr[:, e].max():5.1f} {oerr[:, e].max():4.1f}" for e in range(len(effectors))]
         print(f"{name:36s} {100 * ok.mean():5.0f} {np.median(its):5.0f} {np.median(ms):7.3f} "
-              f"{np.percentile(ms, 95):7.3f}  " + "  ".join(f"{c:>15s}" for c in cells))
+              f"{np.median(ms) / ys:6.2f} {np.percentile(ms, 95):7.3f}  " + "  ".join(f"{c:>15s}" for c in cells))
     return 0
 
 

@@ -15,6 +15,24 @@ import numpy as np
 # Moment vector layout: n, sum x, sum y, sum xx, sum xy, sum yy.
 N_MOMENTS = 6
 
+# The settings of ``label_and_refine`` and ``predict_gates`` (from ``blobs.BlobParams``), each a
+# (1,) structured array: the kernels read the fields by name, and numba dispatches it as one
+# array argument (cheaper per call than a NamedTuple of scalars).
+REFINE_PARAMS = np.dtype([("min_area_px", "f8"), ("ellipse_scale", "f8"), ("n_contour_pts", "i8"),
+                          ("search_frac", "f8"), ("search_min_px", "f8"), ("window_half_px", "i8"),
+                          ("mirror_iters", "i8"), ("max_refine_shift_frac", "f8"), ("exclusive_pixels", "?")])
+GATE_PARAMS = np.dtype([("gate_min_px", "f8"), ("gate_radius_factor", "f8"), ("gate_unknown_px", "f8"),
+                        ("gate_speed_factor", "f8")])
+
+
+def params_record(dtype: np.dtype, source, **override) -> np.ndarray:
+    """(1,) array of ``dtype`` with each field taken from the attribute of ``source`` of the same
+    name, or from ``override``."""
+    out = np.zeros(1, dtype)
+    for name in dtype.names:
+        out[name] = override[name] if name in override else getattr(source, name)
+    return out
+
 
 @numba.njit(cache=True, nogil=True)
 def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums):  # pragma: no cover - numba
@@ -270,18 +288,18 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp
     weights, ``label_moments``), visible (K,) bool. Outputs (K rows):
     sums (K, 6) moments, xy (K, 2) cue (NaN if < min_area pixels), cov (K, 2, 2), area (K,),
     contours (K, n_pts, 2), has_contour (K,) bool (False: occluded or refinement rejected).
-    kp: packed parameters (min_area, scale, n_pts, search_frac, search_min_px, win_half_px,
-    mirror_iters, max_shift_frac, exclusive) - one array, as numba's dispatch costs per argument.
+    kp: (1,) ``REFINE_PARAMS`` record (one array: numba's dispatch costs per argument).
     """
-    min_area = kp[0]
-    scale = kp[1]
-    n_pts = int(kp[2])
-    search_frac = kp[3]
-    search_min_px = kp[4]
-    win_half_px = int(kp[5])
-    mirror_iters = int(kp[6])
-    max_shift_frac = kp[7]
-    exclusive = kp[8] > 0
+    q = kp[0]
+    min_area = q.min_area_px
+    scale = q.ellipse_scale
+    n_pts = q.n_contour_pts
+    search_frac = q.search_frac
+    search_min_px = q.search_min_px
+    win_half_px = q.window_half_px
+    mirror_iters = q.mirror_iters
+    max_shift_frac = q.max_refine_shift_frac
+    exclusive = q.exclusive_pixels
     K = centers.shape[0]
     lox = 1e18
     loy = 1e18
@@ -397,9 +415,9 @@ def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_p
 
     Own prediction: constant velocity, NaN after ``max_coast`` lost frames. With
     ``use_pred`` the given prediction (image px) wins where finite, and the radius is the
-    larger of the predicted one and the blob's own semi-major axis. gp: (gate_min_px,
-    gate_radius_factor, gate_unknown_px, gate_speed_factor).
+    larger of the predicted one and the blob's own semi-major axis. gp: (1,) ``GATE_PARAMS`` record.
     """
+    q = gp[0]
     for k in range(xy.shape[0]):
         if coast[k] > max_coast:
             cx = np.nan
@@ -416,5 +434,5 @@ def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_p
                 r = pred_radius[k]
         centers[k, 0] = cx - ox
         centers[k, 1] = cy - oy
-        g = max(gp[0], gp[1] * r) if math.isfinite(r) else gp[2]
-        gate[k] = g + gp[3] * math.hypot(vel[k, 0], vel[k, 1])
+        g = max(q.gate_min_px, q.gate_radius_factor * r) if math.isfinite(r) else q.gate_unknown_px
+        gate[k] = g + q.gate_speed_factor * math.hypot(vel[k, 0], vel[k, 1])

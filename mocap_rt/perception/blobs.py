@@ -32,7 +32,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mocap_rt.perception.blob_kernels import N_MOMENTS, label_and_refine, predict_gates, update_tracks
+from mocap_rt.perception.blob_kernels import (GATE_PARAMS, N_MOMENTS, REFINE_PARAMS, label_and_refine, params_record,
+                                              predict_gates, update_tracks)
 from mocap_rt.perception.region_kernels import acquire_candidates, snap_regions, snap_window
 
 log = logging.getLogger(__name__)
@@ -107,12 +108,9 @@ class BlobTracker:
         self._all_visible = np.ones(K, np.bool_)
         self._size = np.array([ROLE_SIZE.get(r, 1.0) for r in self.roles])
         self._acq_cand = np.empty((ACQUIRE_MAX_REGIONS, 4))   # acquire_candidates' output
-        p = params
-        self._kp = np.array([p.min_area_px, p.ellipse_scale, p.n_contour_pts, p.search_frac, p.search_min_px,
-                             p.window_half_px, p.mirror_iters, p.max_refine_shift_frac, float(p.exclusive_pixels)])
-        self._kp_nomirror = self._kp.copy()
-        self._kp_nomirror[6] = 0
-        self._gate_params = np.array([p.gate_min_px, p.gate_radius_factor, p.gate_unknown_px, p.gate_speed_factor])
+        self._kp = params_record(REFINE_PARAMS, params)
+        self._kp_nomirror = params_record(REFINE_PARAMS, params, mirror_iters=0)
+        self._gate_params = params_record(GATE_PARAMS, params)
 
     def reseat(self, k: int, xy: np.ndarray, radius_px: float) -> None:
         """Put blob k's track at ``xy`` (2,) image px, at rest, with semi-major axis
