@@ -35,7 +35,7 @@ import numpy as np
 
 from mocap_rt.body.bvh_export import bvh_skeleton_of
 from mocap_rt.body.skeleton import BoneLengths, write_bone_lengths
-from mocap_rt.io.bvh import BvhStreamWriter
+from mocap_rt.io.bvh_writer import BvhStreamWriter
 from mocap_rt.io.files import atomic_write
 from nodes.frame_window import RECORD_BEHIND, FrameWindow
 from nodes.messages import Background, Frame, Keys, Pose, Trigger

@@ -37,5 +37,5 @@ def test_stamp_follows_the_kernel_sources_numba_and_the_cache_dir(tmp_path, monk
 
 def test_the_package_kernel_sources_are_the_numba_modules():
     names = {p.name for p in warmup.kernel_sources()}
-    assert {"blob_kernels.py", "ccd.py", "render.py", "warmup.py"} <= names
+    assert {"blob_kernels.py", "ik_kernels.py", "render_kernels.py", "warmup.py"} <= names
     assert "recording.py" not in names                            # io: no kernels

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from mocap_rt.body.annotations import pose_from_annotations, read_annotations
     from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
     from mocap_rt.body.skeleton import END_EFFECTORS
-    from mocap_rt.io.bvh import write_bvh
+    from mocap_rt.io.bvh_writer import write_bvh
     from mocap_rt.names import JOINT_NAMES
 
     path = Path(args.annotations)

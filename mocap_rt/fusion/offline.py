@@ -94,7 +94,7 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
         noise), to measure fusion apart from perception (studio recordings only).
     """
     from mocap_rt.body.skeleton import write_bone_lengths
-    from mocap_rt.io.bvh import write_bvh
+    from mocap_rt.io.bvh_writer import write_bvh
     from mocap_rt.io.exports import write_pose_exports
     from mocap_rt.io.files import atomic_write
     from mocap_rt.io.recording import Recording

@@ -7,7 +7,8 @@ from scipy.spatial.transform import Rotation
 from mocap_rt.body.bvh_export import WORLD_TO_BVH, bvh_frames, bvh_skeleton
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import N_JOINTS, BoneLengths, body_model
-from mocap_rt.io.bvh import BvhStreamWriter, read_bvh, write_bvh
+from mocap_rt.io.bvh import read_bvh
+from mocap_rt.io.bvh_writer import BvhStreamWriter, write_bvh
 from mocap_rt.names import JOINT_NAMES
 
 

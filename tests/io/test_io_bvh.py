@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mocap_rt.io.bvh import (BvhError, BvhStreamWriter, forward_kinematics, read_bvh,
-                             write_bvh)
+from mocap_rt.io.bvh import BvhError, forward_kinematics, read_bvh
+from mocap_rt.io.bvh_writer import BvhStreamWriter, write_bvh
 
 
 def _clips(data_dir: Path) -> list[Path]:
@@ -129,7 +129,8 @@ def test_stream_writer_survives_sigkill(tmp_path, data_dir, kill_when_ready):
     out = tmp_path / "live.bvh"
     script = textwrap.dedent(f"""
         import sys, time
-        from mocap_rt.io.bvh import read_bvh, BvhStreamWriter
+        from mocap_rt.io.bvh import read_bvh
+        from mocap_rt.io.bvh_writer import BvhStreamWriter
         clip = read_bvh({str(src)!r})
         w = BvhStreamWriter({str(out)!r}, clip.skeleton, 0.01)  # flushes every 100 frames
         for i in range(10**9):
