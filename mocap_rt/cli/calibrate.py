@@ -34,8 +34,7 @@ def register(subparsers) -> None:
                                      "3D points in metres and their pixels, by the Hartley-normalised DLT.")
     dlt.add_argument("--points", required=True, type=Path, help="CSV with header X,Y,Z,u,v (metres, pixels)")
     dlt.add_argument("--size", required=True, help="image size WxH in pixels, e.g. 640x480")
-    dlt.add_argument("--name", required=True, help="camera name in the rig, e.g. cam_1")
-    dlt.add_argument("--out", required=True, type=Path, help="rig TOML to write or add the camera to")
+    _add_camera_out_args(dlt)
     dlt.set_defaults(func=run_dlt)
 
     board = sub.add_parser("board", help="intrinsics from board images/video, extrinsics from a placed board",
@@ -60,8 +59,7 @@ def register(subparsers) -> None:
     ext.add_argument("--board-yaw-deg", type=float, default=0.0,
                      help="rotation of the board's x axis from world +X about +Z (degrees)")
     ext.add_argument("--extrinsic-points", type=Path, help="CSV X,Y,Z,u,v of known 3D points (instead)")
-    board.add_argument("--name", required=True, help="camera name in the rig, e.g. cam_1")
-    board.add_argument("--out", required=True, type=Path, help="rig TOML to write or add the camera to")
+    _add_camera_out_args(board)
     board.set_defaults(func=run_board)
 
     make = sub.add_parser("make-board", help="write a printable board image (PNG)",
@@ -71,6 +69,11 @@ def register(subparsers) -> None:
     make.add_argument("--px-per-square", type=int, default=200, help="pixels per square (default 200)")
     make.add_argument("--out", required=True, type=Path, help="PNG file to write")
     make.set_defaults(func=run_make_board)
+
+
+def _add_camera_out_args(parser) -> None:
+    parser.add_argument("--name", required=True, help="camera name in the rig, e.g. cam_1")
+    parser.add_argument("--out", required=True, type=Path, help="rig TOML to write or add the camera to")
 
 
 def _add_board_args(parser) -> None:

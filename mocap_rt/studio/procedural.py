@@ -11,7 +11,8 @@ the limb plane, so the elbow and knee are pure hinges and bone lengths are exact
 
 The motions themselves (``procedural_motions.py``) are smooth keyframe scripts; each
 takes a seed that varies amplitudes, tempo, heading and side, so held-out seeds give
-clips that differ from the tuning ones. ``generate(name, seed)`` returns a ``BvhClip``.
+clips that differ from the tuning ones. ``procedural_motions.generate(name, seed)`` returns a
+``BvhClip``.
 
 Frames: the CMU file has Y up, the subject facing +Z with its left on +X at rest;
 world = ``AXES @ file`` = (x, -z, y), so at rest the subject faces world -Y.
@@ -20,6 +21,7 @@ world = ``AXES @ file`` = (x, -z, y), so at rest the subject faces world -Y.
 from __future__ import annotations
 
 import os
+import zlib
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
@@ -273,16 +275,51 @@ def skeleton_geometry(skeleton_path: str | None = None) -> SkeletonGeometry:
     return g
 
 
-def generate(name: str, seed: int = 0, seconds: float | None = None, fps: float = DEFAULT_FPS,
-             skeleton_path: str | None = None) -> BvhClip:
-    """The procedural motion ``name`` (see ``MOTIONS``) for ``seed``, as a BVH clip."""
-    from mocap_rt.studio.procedural_motions import MOTIONS, Timeline
+def min_jerk(s: np.ndarray) -> np.ndarray:
+    """Minimum-jerk blend 0 -> 1 for ``s`` in [0, 1] (clipped)."""
+    s = np.clip(s, 0.0, 1.0)
+    return s * s * s * (10 - 15 * s + 6 * s * s)
 
-    if name not in MOTIONS:
-        raise ValueError(f"unknown procedural motion {name!r}; known: {', '.join(sorted(MOTIONS))}")
-    if fps <= 0 or (seconds is not None and seconds <= 0):
-        raise ValueError(f"fps and seconds must be > 0, got {fps}, {seconds}")
-    g = skeleton_geometry(skeleton_path)
-    tl = Timeline.make(name, int(seed), float(seconds or DEFAULT_SECONDS), float(fps))
-    script = MOTIONS[name](g, tl)
-    return BvhClip(g.skeleton, solve_script(g, script), 1.0 / fps)
+
+@dataclass
+class Timeline:
+    """Frame times and the seed's draws. t (F,) seconds; amp, tempo factors; heading0 rad;
+    side 0/1 (the leading or active side); rng for motion-specific draws."""
+
+    t: np.ndarray
+    seconds: float
+    amp: float
+    tempo: float
+    heading0: float
+    side: int
+    rng: np.random.Generator
+
+    @classmethod
+    def make(cls, name: str, seed: int, seconds: float, fps: float) -> "Timeline":
+        rng = np.random.default_rng([zlib.crc32(name.encode()), int(seed) & 0xFFFFFFFF])
+        n = int(round(seconds * fps)) + 1
+        return cls(np.arange(n) / fps, seconds, float(rng.uniform(0.85, 1.15)), float(rng.uniform(0.85, 1.15)),
+                   float(rng.uniform(-np.pi, np.pi)), int(rng.integers(2)), rng)
+
+    @property
+    def n(self) -> int:
+        return self.t.size
+
+    def keys(self, times, values) -> np.ndarray:
+        """Min-jerk interpolation through keyframes: times (K,) s, values (K, ...) -> (F, ...)."""
+        times = np.asarray(times, dtype=np.float64)
+        values = np.asarray(values, dtype=np.float64)
+        i = np.clip(np.searchsorted(times, self.t, side="right") - 1, 0, len(times) - 2)
+        s = (self.t - times[i]) / np.maximum(times[i + 1] - times[i], 1e-9)
+        w = min_jerk(s).reshape((-1,) + (1,) * (values.ndim - 1))
+        return values[i] + w * (values[i + 1] - values[i])
+
+    def cycle_keys(self, period: float, times, values) -> np.ndarray:
+        """``keys`` of one cycle (times within [0, period], first value = last) repeated."""
+        reps = int(np.ceil(self.seconds / period)) + 1
+        tt = np.concatenate([np.asarray(times, float)[:-1] + r * period for r in range(reps)] + [[reps * period]])
+        vv = np.concatenate([np.asarray(values, float)[:-1]] * reps + [np.asarray(values, float)[-1:]])
+        return self.keys(tt, vv)
+
+    def frame(self, time_s: float) -> int:
+        return int(np.clip(np.searchsorted(self.t, time_s), 0, self.n - 1))

@@ -1,4 +1,5 @@
-"""The procedural motions: smooth keyframe scripts, varied per seed (see ``procedural``).
+"""The procedural motions (``MOTIONS``): smooth keyframe scripts, varied per seed, and
+``generate(name, seed)``, a motion as a BVH clip (the skeleton and the solver: ``procedural``).
 
 Every motion is written in the *body frame* of its start (x forward, y the subject's
 left, z up, metres; origin on the floor under the pelvis) and carried into the world by a
@@ -10,73 +11,24 @@ min-jerk swings with a lift. The seed draws an amplitude and a tempo factor
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from mocap_rt.studio.procedural import Script, SkeletonGeometry
+from mocap_rt.io.bvh import BvhClip
+from mocap_rt.studio.procedural import (DEFAULT_FPS, DEFAULT_SECONDS, Script, SkeletonGeometry, Timeline,
+                                         min_jerk, skeleton_geometry, solve_script)
 
 G_MPS2 = 9.81
 HANG_DEG = 8.0            # arm elevation of hanging arms (clears the hips)
 REACH = 0.985             # fraction of the arm length used for a "straight" arm
 
 
-def min_jerk(s: np.ndarray) -> np.ndarray:
-    """Minimum-jerk blend 0 -> 1 for ``s`` in [0, 1] (clipped)."""
-    s = np.clip(s, 0.0, 1.0)
-    return s * s * s * (10 - 15 * s + 6 * s * s)
-
-
 def _rz(h: np.ndarray) -> np.ndarray:
     c, s = np.cos(h), np.sin(h)
     z, o = np.zeros_like(h), np.ones_like(h)
     return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
-
-
-@dataclass
-class Timeline:
-    """Frame times and the seed's draws. t (F,) seconds; amp, tempo factors; heading0 rad;
-    side 0/1 (the leading or active side); rng for motion-specific draws."""
-
-    t: np.ndarray
-    seconds: float
-    amp: float
-    tempo: float
-    heading0: float
-    side: int
-    rng: np.random.Generator
-
-    @classmethod
-    def make(cls, name: str, seed: int, seconds: float, fps: float) -> "Timeline":
-        rng = np.random.default_rng([zlib.crc32(name.encode()), int(seed) & 0xFFFFFFFF])
-        n = int(round(seconds * fps)) + 1
-        return cls(np.arange(n) / fps, seconds, float(rng.uniform(0.85, 1.15)), float(rng.uniform(0.85, 1.15)),
-                   float(rng.uniform(-np.pi, np.pi)), int(rng.integers(2)), rng)
-
-    @property
-    def n(self) -> int:
-        return self.t.size
-
-    def keys(self, times, values) -> np.ndarray:
-        """Min-jerk interpolation through keyframes: times (K,) s, values (K, ...) -> (F, ...)."""
-        times = np.asarray(times, dtype=np.float64)
-        values = np.asarray(values, dtype=np.float64)
-        i = np.clip(np.searchsorted(times, self.t, side="right") - 1, 0, len(times) - 2)
-        s = (self.t - times[i]) / np.maximum(times[i + 1] - times[i], 1e-9)
-        w = min_jerk(s).reshape((-1,) + (1,) * (values.ndim - 1))
-        return values[i] + w * (values[i + 1] - values[i])
-
-    def cycle_keys(self, period: float, times, values) -> np.ndarray:
-        """``keys`` of one cycle (times within [0, period], first value = last) repeated."""
-        reps = int(np.ceil(self.seconds / period)) + 1
-        tt = np.concatenate([np.asarray(times, float)[:-1] + r * period for r in range(reps)] + [[reps * period]])
-        vv = np.concatenate([np.asarray(values, float)[:-1]] * reps + [np.asarray(values, float)[-1:]])
-        return self.keys(tt, vv)
-
-    def frame(self, time_s: float) -> int:
-        return int(np.clip(np.searchsorted(self.t, time_s), 0, self.n - 1))
 
 
 @dataclass
@@ -445,3 +397,16 @@ def turn_in_place(g: SkeletonGeometry, tl: Timeline) -> Script:
 MOTIONS: dict[str, Callable[[SkeletonGeometry, Timeline], Script]] = {
     f.__name__: f for f in (sidestep, crouch, arms_overhead, hands_cross_face, jump, jumping_jacks, clap,
                             hands_on_head, hand_behind_head, crouch_hands_to_feet, feet_cross, turn_in_place)}
+
+
+def generate(name: str, seed: int = 0, seconds: float | None = None, fps: float = DEFAULT_FPS,
+             skeleton_path: str | None = None) -> BvhClip:
+    """The procedural motion ``name`` (see ``MOTIONS``) for ``seed``, as a BVH clip."""
+    if name not in MOTIONS:
+        raise ValueError(f"unknown procedural motion {name!r}; known: {', '.join(sorted(MOTIONS))}")
+    if fps <= 0 or (seconds is not None and seconds <= 0):
+        raise ValueError(f"fps and seconds must be > 0, got {fps}, {seconds}")
+    g = skeleton_geometry(skeleton_path)
+    tl = Timeline.make(name, int(seed), float(seconds or DEFAULT_SECONDS), float(fps))
+    script = MOTIONS[name](g, tl)
+    return BvhClip(g.skeleton, solve_script(g, script), 1.0 / fps)

@@ -135,7 +135,7 @@ def load_motion(spec: str | Path, variant: str | None = None) -> tuple[BvhClip, 
     """
     spec = str(spec)
     if spec.startswith("procedural:"):
-        from mocap_rt.studio.procedural import generate
+        from mocap_rt.studio.procedural_motions import generate
 
         parts = spec.split(":")
         if len(parts) not in (2, 3) or not parts[1]:

@@ -8,8 +8,7 @@ from mocap_rt.fusion.evaluate import anatomical_angles, trunk_axes
 from mocap_rt.io.bvh import forward_kinematics, read_bvh
 from mocap_rt.names import JOINT_NAMES
 from mocap_rt.studio.body_map import BONES, body_motion
-from mocap_rt.studio.procedural import generate
-from mocap_rt.studio.procedural_motions import MOTIONS
+from mocap_rt.studio.procedural_motions import MOTIONS, generate
 from mocap_rt.studio.variants import apply_variant, load_motion, mirror_name, mirrored, time_reversed, turned
 
 FPS = 30.0
