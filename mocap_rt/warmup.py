@@ -231,8 +231,10 @@ def exercise_outputs() -> None:
 
     model = body_model(None, "paper")
     humanoid_pose_from_bvh_row(HumanoidRig.of(model), model, bvh_frame(model, np.zeros(3), np.zeros((20, 3))))
-    chroma = np.zeros((1, 2), np.uint8)
-    i420_to_bgr(np.zeros((2, 4), np.uint8), chroma, chroma)
+    for writeable in (True, False):         # GStreamer's mapped buffers are read-only arrays
+        y, chroma = np.zeros((2, 4), np.uint8), np.zeros((1, 2), np.uint8)
+        y.flags.writeable = chroma.flags.writeable = writeable
+        i420_to_bgr(y, chroma, chroma)
 
 
 def _say(msg: str) -> None:

@@ -54,6 +54,24 @@ def test_live_videotestsrc_frames_arrive_in_bgr_with_capture_stamps():
     assert np.median(np.diff(t)) == pytest.approx(1e9 / 30, rel=0.2)
 
 
+def test_live_mjpeg_through_avdec_mjpeg_keeps_the_colours():
+    """A live MJPEG stream (solid colours -> full-range I420 -> jpegenc, as a UVC webcam's)
+    decoded by avdec_mjpeg: its I420 goes to the appsink and is converted in Python (JFIF
+    BT.601 full range); each colour comes back within JPEG's and the fixed point's rounding."""
+    for argb, bgr in ((0xFFFF0000, (0, 0, 255)), (0xFF00C000, (0, 192, 0)), (0xFF808080, (128, 128, 128)),
+                      (0xFF2040A0, (160, 64, 32))):
+        src = open_source(f"gst:videotestsrc is-live=true pattern=solid-color foreground-color={argb:#x} "
+                          "! video/x-raw,format=BGR,width=320,height=240,framerate=30/1 ! videoconvert "
+                          "! video/x-raw,format=I420,colorimetry=1:4:0:0 ! jpegenc quality=95 ! jpegparse ! avdec_mjpeg",
+                          _camera())
+        try:
+            g = src.grabber.latest(after_seq=-1, timeout_s=20.0)      # a live pipeline's first frame: ~1 s
+        finally:
+            src.close()
+        assert g.image.shape == (240, 320, 3)
+        assert np.abs(g.image.reshape(-1, 3).astype(int) - bgr).max() <= 3, (hex(argb), g.image[120, 160])
+
+
 def test_file_pipeline_plays_a_recorded_segment_frame_by_frame(walk):
     rec = Recording(walk)
     src = open_source(f"gst:filesrc location={walk}/video/{{camera}}/seg_000000.avi ! avidemux ! jpegdec",
@@ -94,6 +112,9 @@ def test_ieee1394_and_bad_pipelines_fail_with_clear_errors():
         open_source("gst:nosuchsrc", _camera())
     with pytest.raises(RuntimeError, match="100x50, the rig camera is 320x240"):
         open_source("gst:videotestsrc ! video/x-raw,width=100,height=50", _camera()).grab(0)
+    with pytest.raises(RuntimeError, match="I420 colorimetry bt2020"):          # only BT.601/709 are converted
+        open_source("gst:videotestsrc num-buffers=2 ! video/x-raw,format=I420,width=320,height=240,colorimetry=bt2020 "
+                    "! appsink", _camera()).grab(0)
     # dc1394src (IEEE1394/IIDC) is there; with no camera on the bus it says so
     with pytest.raises(RuntimeError, match="dc1394src"):
         open_source("gst:dc1394src", _camera())
