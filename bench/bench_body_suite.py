@@ -34,7 +34,7 @@ import numpy as np
 
 from bench.suite import ensure_recording, select, suite_clips
 from bench.yardstick import header, timing_lock, yardstick_ms
-from mocap_rt.names import CUE_NAMES, JOINT_NAMES
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, CUE_NAMES, J
 
 TARGETS = {"mpjpe_mm": 30.0, "mirrored_pct": 0.0, "heading_p95_deg": 15.0, "elbow_mm": 40.0, "knee_mm": 40.0}
 COLS = (("MPJPE", "mpjpe_mm", 6, 0), ("PA", "pa_mpjpe_mm", 5, 0), ("mirr%", "mirrored_pct", 5, 0),
@@ -42,7 +42,7 @@ COLS = (("MPJPE", "mpjpe_mm", 6, 0), ("PA", "pa_mpjpe_mm", 5, 0), ("mirr%", "mir
         ("knee", "knee_mm", 5, 0), ("cue50", "cue_med_mm", 5, 0), ("cue95", "cue_p95_mm", 5, 0),
         ("aHip", "rmse_hips_deg", 5, 0), ("aKnee", "rmse_knees_deg", 5, 0), ("aShd", "rmse_shoulders_deg", 5, 0),
         ("aElb", "rmse_elbows_deg", 5, 0), ("fus50", "fusion_ms_med", 6, 2), ("fus99", "fusion_ms_p99", 6, 2))
-LEGS = [JOINT_NAMES.index(n) for s in ("l", "r") for n in (f"knee_{s}", f"ankle_{s}", f"foot_{s}")]
+LEGS = [J[n] for s in ("l", "r") for n in (f"knee_{s}", f"ankle_{s}", f"foot_{s}")]
 
 
 def run_clip(rec_dir, lock: bool, legs: bool = True) -> dict:
@@ -62,7 +62,7 @@ def run_clip(rec_dir, lock: bool, legs: bool = True) -> dict:
     cues = out.cues.copy()
     if not legs:
         joints[:, LEGS] = np.nan
-        cues[:, [CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")]] = np.nan
+        cues[:, [C_FOOT_L, C_FOOT_R]] = np.nan
     m = suite_metrics(truth, out.frames, cues, joints, out.fusion_ms)
     m["process_s"] = wall
     return m

@@ -33,11 +33,12 @@ from mocap_rt.fusion.identity import IdentityConfig
 from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
 from mocap_rt.fusion.views import CUE_RADII_M, RigProjector, predict_views
 from mocap_rt.geometry.rig import desktop_rig, ring_rig
-from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, CUE_JOINT_INDEX, JOINT_NAMES
+from mocap_rt.names import J as JOINT_INDEX
 
 REPO = Path(__file__).resolve().parents[1]
 TARGETS = {"cue_median_mm": 10.0, "cue_p95_mm": 30.0, "mpjpe_mm": 30.0, "fusion_ms": 1.0}
-UPPER = [JOINT_NAMES.index(n) for n in ("pelvis", "torso", "neck", "head", "shoulder_l", "elbow_l", "wrist_l",
+UPPER = [JOINT_INDEX[n] for n in ("pelvis", "torso", "neck", "head", "shoulder_l", "elbow_l", "wrist_l",
                                         "hand_l", "shoulder_r", "elbow_r", "wrist_r", "hand_r")]
 
 
@@ -171,15 +172,16 @@ def main(argv: list[str] | None = None) -> int:
     drig = desktop_rig()
     for clip in clips[:3]:
         J = clip_joints(clip, seconds=args.seconds)
-        J[..., :2] -= J[:, JOINT_NAMES.index("pelvis"), None, :2]
+        J[..., :2] -= J[:, JOINT_INDEX["pelvis"], None, :2]
         C = J[:, list(CUE_JOINT_INDEX)]
         fc = projected_cues(drig, C, args.noise_px, rng)
         for d in fc:
             for cc in d.values():
-                cc.xy[3:5] = np.nan
-                cc.confidence[3:5] = 0
+                cc.xy[[C_FOOT_L, C_FOOT_R]] = np.nan
+                cc.confidence[[C_FOOT_L, C_FOOT_R]] = 0
         cues, joints, ms, tms = track(drig, fc, replace(base, bone_lengths=bone_lengths_from_joints(J)))
-        ce, je = errors(cues[:, [0, 1, 2, 5]], joints, C[:, [0, 1, 2, 5]], J, joint_idx=UPPER)
+        upper = [C_HEAD, C_HAND_L, C_HAND_R, C_TORSO]
+        ce, je = errors(cues[:, upper], joints, C[:, upper], J, joint_idx=UPPER)
         print(fmt_row("  " + clip.stem[:42], ce, je, tms))
 
     # studio recordings

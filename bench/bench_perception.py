@@ -35,6 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap_rt.names import C_TORSO, CUE_NAMES, LR_PAIRS, N_CUES
+
+_LIMBS_HEAD = np.arange(N_CUES) != C_TORSO     # every cue but the torso
+
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "out" / "perception"
 BENCH_OUT = REPO / "bench" / "out"
@@ -183,7 +187,7 @@ def evaluate_recording(rec_dir: Path, mode: str, skin_model: str, config=None) -
     err = np.hypot(*(xy - t2d).transpose(3, 0, 1, 2))                      # (C, F, 6)
     swaps = 0
     swap_frames_in_crossing = 0
-    for a, b in ((1, 2), (3, 4)):
+    for a, b in LR_PAIRS:
         d_pair = np.hypot(*(t2d[:, :, a] - t2d[:, :, b]).transpose(2, 0, 1))   # (C, F)
         near = np.nan_to_num(d_pair, nan=np.inf) < CROSS_PX_640 * scale
         crossing = np.zeros_like(near)
@@ -202,20 +206,20 @@ def evaluate_recording(rec_dir: Path, mode: str, skin_model: str, config=None) -
 
 
 def _summary(results: list[dict]) -> dict:
-    err = np.concatenate([r["err"].reshape(-1, 6) for r in results])
-    vis = np.concatenate([r["visible"].reshape(-1, 6) for r in results])
-    found = np.concatenate([r["found"].reshape(-1, 6) for r in results])
+    err = np.concatenate([r["err"].reshape(-1, N_CUES) for r in results])
+    vis = np.concatenate([r["visible"].reshape(-1, N_CUES) for r in results])
+    found = np.concatenate([r["found"].reshape(-1, N_CUES) for r in results])
     iou = np.concatenate([r["iou"].ravel() for r in results])
     ok = vis & found
-    e5 = err[:, :5][ok[:, :5]]
-    et = err[:, 5][ok[:, 5]]
-    per_cue = {k: (float(np.median(err[:, k][ok[:, k]])) if ok[:, k].any() else np.nan) for k in range(6)}
+    e5 = err[:, _LIMBS_HEAD][ok[:, _LIMBS_HEAD]]
+    et = err[:, C_TORSO][ok[:, C_TORSO]]
+    per_cue = {k: (float(np.median(err[:, k][ok[:, k]])) if ok[:, k].any() else np.nan) for k in range(N_CUES)}
     return {"median_px": float(np.median(e5)) if e5.size else np.nan,
             "p95_px": float(np.percentile(e5, 95)) if e5.size else np.nan,
             "torso_median_px": float(np.median(et)) if et.size else np.nan,
             "torso_p95_px": float(np.percentile(et, 95)) if et.size else np.nan,
             "per_cue_median_px": per_cue,
-            "lost": int((vis & ~found)[:, :5].sum()), "visible": int(vis[:, :5].sum()),
+            "lost": int((vis & ~found)[:, _LIMBS_HEAD].sum()), "visible": int(vis[:, _LIMBS_HEAD].sum()),
             "swaps": sum(r["swaps"] for r in results),
             "swaps_in_crossing": sum(r["swaps_in_crossing"] for r in results),
             "iou_median": float(np.nanmedian(iou)), "iou_mean": float(np.nanmean(iou)),
@@ -369,7 +373,7 @@ def real_footage() -> None:
         skin_frac = []
         for f, img in enumerate(frames):
             cues = p.process(img, f)
-            found.append(cues.found[:5])
+            found.append(cues.found[_LIMBS_HEAD])
             lm = likelihood_map(img, skin, binary=True)
             skin_frac.append(lm.mean())
             if f in (len(frames) // 3, 2 * len(frames) // 3):
@@ -377,11 +381,11 @@ def real_footage() -> None:
                 sil = p.last_silhouette
                 vis[sil] = (0.6 * vis[sil] + 0.4 * np.array([255, 0, 255])).astype(np.uint8)
                 vis[lm > 0] = (0, 255, 255)
-                for k in range(6):
+                for k in range(N_CUES):
                     if cues.found[k]:
                         c = tuple(int(round(x)) for x in cues.xy[k])
                         cv2.circle(vis, c, 5, (0, 0, 255), -1)
-                        cv2.putText(vis, ("head", "hand_l", "hand_r", "foot_l", "foot_r", "torso")[k], c,
+                        cv2.putText(vis, CUE_NAMES[k], c,
                                     cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1)
                 for con in p.last_contours.values():
                     cv2.polylines(vis, [np.round(con).astype(np.int32)], True, (255, 0, 0), 1)

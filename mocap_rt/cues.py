@@ -11,9 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocap_rt.names import CUE_NAMES
+from mocap_rt.names import N_CUES
 
-N_CUES = len(CUE_NAMES)
 # Budget of a compact silhouette's packed bits, bytes: with the rest of the cues the
 # message stays under 4 KB per camera and frame.
 SILHOUETTE_MAX_BYTES = 3072

@@ -32,9 +32,9 @@ import numpy as np
 from numba import njit
 
 from mocap_rt.body.kinematics import euler_xyz_from_matrix
-from mocap_rt.body.skeleton import J, N_JOINTS, BodyModel
+from mocap_rt.body.skeleton import BodyModel
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, N_JOINTS, J
 
-C_HEAD, C_HAND_L, C_HAND_R, C_FOOT_L, C_FOOT_R, C_TORSO = range(6)
 # Relative reach below which a limb is treated as folded (avoids the |L1 - L2| singularity).
 MIN_REACH_FRAC = 0.05
 

@@ -12,9 +12,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from mocap_rt.body.skeleton import J, BoneLengths, body_model
+from mocap_rt.body.skeleton import BoneLengths, body_model
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, N_CUES, J
 
-C_HEAD, C_HAND_L, C_HAND_R, C_FOOT_L, C_FOOT_R, C_TORSO = range(6)
 MIN_FRAMES = 10  # fewer valid frames than this: no estimate
 LEG_PERCENTILE = 90.0
 ARM_PERCENTILE = 97.0
@@ -78,7 +78,7 @@ def estimate_bone_lengths(cues: np.ndarray, base: BoneLengths | None = None,
     scale. Returns None when the head - torso distance has fewer than ``MIN_FRAMES`` frames.
     """
     base = base or BoneLengths()
-    cues = np.asarray(cues, dtype=np.float64).reshape(-1, 6, 3)
+    cues = np.asarray(cues, dtype=np.float64).reshape(-1, N_CUES, 3)
     up = cues[:, C_HEAD] - cues[:, C_TORSO]
     ht = _percentile(np.linalg.norm(up, axis=1), 50.0)
     if ht is None:

@@ -36,10 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap_rt.config import dumps_toml, load_dataclass
-from mocap_rt.names import JOINT_NAMES
-
-J = {name: i for i, name in enumerate(JOINT_NAMES)}
-N_JOINTS = len(JOINT_NAMES)
+from mocap_rt.names import JOINT_NAMES, N_JOINTS, J
 PARENTS: tuple[int, ...] = (
     -1, J["pelvis"], J["torso"], J["neck"],
     J["torso"], J["shoulder_l"], J["elbow_l"], J["wrist_l"],

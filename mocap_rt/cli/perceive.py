@@ -49,14 +49,14 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
     import numpy as np
     from tqdm import tqdm
 
-    from mocap_rt.names import CUE_NAMES
+    from mocap_rt.names import CUE_NAMES, N_CUES
     from mocap_rt.perception.pipeline import CameraPerceiver
 
     n = rec.n_frames if max_frames <= 0 else min(rec.n_frames, max_frames)
     C = len(cameras)
-    cues = np.full((C, n, 6, 2), np.nan)
-    conf = np.zeros((C, n, 6))
-    cov = np.full((C, n, 6, 2, 2), np.nan)
+    cues = np.full((C, n, N_CUES, 2), np.nan)
+    conf = np.zeros((C, n, N_CUES))
+    cov = np.full((C, n, N_CUES, 2, 2), np.nan)
     bbox = np.zeros((C, n, 4), np.int64)
     ms = np.full((C, n), np.nan)
     perceivers = {}

@@ -27,15 +27,12 @@ import numpy as np
 
 from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.silhouette import SilhouetteTargets
-from mocap_rt.names import CUE_NAMES
+from mocap_rt.names import C_HEAD, C_TORSO, LR_PAIRS
 
-C_HAND_L, C_HAND_R = CUE_NAMES.index("hand_l"), CUE_NAMES.index("hand_r")
-C_FOOT_L, C_FOOT_R = CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")
-C_TORSO, C_HEAD = CUE_NAMES.index("torso"), CUE_NAMES.index("head")
 # the alternatives to the current labelling, and the cue pairs each one exchanges
 ALTERNATIVES = ("hands", "feet", "mirror")
-ALTERNATIVE_PAIRS = (((C_HAND_L, C_HAND_R),), ((C_FOOT_L, C_FOOT_R),),
-                     ((C_HAND_L, C_HAND_R), (C_FOOT_L, C_FOOT_R)))
+HANDS, FEET = LR_PAIRS
+ALTERNATIVE_PAIRS = ((HANDS,), (FEET,), (HANDS, FEET))
 # the swivel slots (arm_l, arm_r, leg_l, leg_r) each alternative exchanges
 _SWIVEL_ORDER = (np.array([1, 0, 2, 3]), np.array([0, 1, 3, 2]), np.array([1, 0, 3, 2]))
 

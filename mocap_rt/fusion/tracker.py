@@ -49,29 +49,25 @@ from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, fr
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
-from mocap_rt.names import CUE_JOINT_INDEX, CUE_NAMES
+from mocap_rt.names import (C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, CUE_INDEX, CUE_JOINT_INDEX,
+                            LIMB_CUES, LR_PAIRS, N_CUES)
 
 log = logging.getLogger(__name__)
 
-N_CUES = len(CUE_NAMES)
-C_TORSO = CUE_NAMES.index("torso")
-C_HEAD = CUE_NAMES.index("head")
-C_HAND_L, C_HAND_R = CUE_NAMES.index("hand_l"), CUE_NAMES.index("hand_r")
 # Head blob radius assumed when perception gives no area (pixels).
 MIN_BLOB_RADIUS_PX = 8.0
 # A hand whose 2D cue lies within this many head-blob radii of the head's is taken for
 # a second detection of the face in that view and dropped there.
 SAME_BLOB_RADII = 1.5
-C_FOOT_L, C_FOOT_R = CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")
 # two cues of a left/right pair closer than this (m) are one hand or foot labelled twice
 SAME_POINT_M = 0.03
-_EFFECTOR_CUES = np.array([CUE_NAMES.index(n) for n in END_EFFECTORS])
+_EFFECTOR_CUES = np.array([CUE_INDEX[n] for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
 VIEW_MODES = ("all", "pair")
 # cues whose views may be chosen by consensus (the torso's 2D points are silhouette
 # centres that disagree across views by design; it keeps the plain drop-worst rejection)
-_CONSENSUS_CUES = np.array([n != "torso" for n in CUE_NAMES])
-_NO_CUES = np.zeros(len(CUE_NAMES), dtype=bool)
+_CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
+_NO_CUES = np.zeros(N_CUES, dtype=bool)
 IK_MODES = ("analytic", "ccd")
 
 
@@ -144,7 +140,7 @@ class FusionResult:
 
 
 # joints that depend on each hand/foot cue (the limb beyond the shoulder/hip)
-_LIMB_OF_CUE = {CUE_NAMES.index(f"{k}_{s}"): [J[f"{n}_{s}"] for n in names]
+_LIMB_OF_CUE = {CUE_INDEX[f"{k}_{s}"]: [J[f"{n}_{s}"] for n in names]
                 for s in ("l", "r") for k, names in (("hand", ("elbow", "wrist", "hand")),
                                                      ("foot", ("knee", "ankle", "foot")))}
 
@@ -417,14 +413,14 @@ class BodyTracker:
         by fewer views (``used`` (C, 6)) goes.
         """
         X = X.copy()
-        for a, b in ((C_HAND_L, C_HAND_R), (C_FOOT_L, C_FOOT_R)):
+        for a, b in LR_PAIRS:
             if valid[a] and valid[b] and np.linalg.norm(X[a] - X[b]) < SAME_POINT_M:
                 X[b if used[:, a].sum() >= used[:, b].sum() else a] = np.nan
         if not valid[C_HEAD]:
             return X
         pred = self.filter.predict_at(t_s)
         dup = self.config.duplicate_m
-        for c in (1, 2, 3, 4):
+        for c in LIMB_CUES:
             if valid[c] and np.linalg.norm(X[c] - X[C_HEAD]) < dup:
                 p = pred[c]
                 if not (np.isfinite(p).all() and np.linalg.norm(p - X[C_HEAD]) < 2 * dup):

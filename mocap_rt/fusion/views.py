@@ -26,6 +26,7 @@ import numpy as np
 
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
+from mocap_rt.names import LR_PAIRS
 
 # Physical cue radii (metres) for the predicted blob size and the Z-buffer discs,
 # in CUE_NAMES order: head, hands, feet (shoe), torso.
@@ -228,8 +229,6 @@ def predict_views(proj: RigProjector, X: np.ndarray, radii_m: np.ndarray = CUE_R
     return xy, vis, rad
 
 
-# Left/right pairs of cues (CUE_NAMES order) whose labels a single view cannot be sure of.
-LR_PAIRS = ((1, 2), (3, 4))
 # Reprojection error cap (pixels) in the label search, so one bad blob cannot dominate.
 LR_COST_CAP_PX = 40.0
 # With a prediction, a view is relabelled only if the swapped labels are nearer by this

@@ -12,11 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap_rt.names import CUE_NAMES
+from mocap_rt.names import CUE_NAMES, LR_PAIRS
 
-# Pairs scored under whichever left/right labelling fits better (identity is fusion's job).
-PAIRS: tuple[tuple[int, int], ...] = ((CUE_NAMES.index("hand_l"), CUE_NAMES.index("hand_r")),
-                                      (CUE_NAMES.index("foot_l"), CUE_NAMES.index("foot_r")))
 # A visible cue farther than this from its truth (pixels at 640 px width, scaled) is lost.
 LOST_PX_640 = 20.0
 
@@ -24,10 +21,10 @@ LOST_PX_640 = 20.0
 def pair_best_errors(xy: np.ndarray, truth_xy: np.ndarray) -> np.ndarray:
     """(C, F, 6) pixel errors; for each hand and foot pair, per camera and frame, the
     labelling (straight or crossed) with the smaller summed error is used when both cues
-    and both truths are defined; otherwise the straight one."""
+    and both truths are defined; otherwise the straight one (identity is fusion's job)."""
     xy, truth_xy = np.asarray(xy, np.float64), np.asarray(truth_xy, np.float64)
     err = np.linalg.norm(xy - truth_xy, axis=-1)
-    for a, b in PAIRS:
+    for a, b in LR_PAIRS:
         crossed_a = np.linalg.norm(xy[..., a, :] - truth_xy[..., b, :], axis=-1)
         crossed_b = np.linalg.norm(xy[..., b, :] - truth_xy[..., a, :], axis=-1)
         swap = (crossed_a + crossed_b) < (err[..., a] + err[..., b])       # False where any is NaN

@@ -28,7 +28,7 @@ import numpy as np
 from mocap_rt.config import load_dataclass
 from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette, CuePrediction
 from mocap_rt.geometry.camera import Camera
-from mocap_rt.names import CUE_NAMES, SHOE_CUES, SKIN_CUES
+from mocap_rt.names import C_HEAD, C_TORSO, CUE_NAMES, N_CUES, SHOE_CUE_INDEX, SHOE_CUES, SKIN_CUE_INDEX, SKIN_CUES
 from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, change_mask, largest_component_filled
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_model_from_spec
@@ -38,10 +38,8 @@ from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
 
 log = logging.getLogger(__name__)
 
-_SKIN_IDX = np.array([CUE_NAMES.index(c) for c in SKIN_CUES])
-_SHOE_IDX = np.array([CUE_NAMES.index(c) for c in SHOE_CUES])
-_TORSO = CUE_NAMES.index("torso")
-_HEAD = CUE_NAMES.index("head")
+_SKIN_IDX = np.array(SKIN_CUE_INDEX)
+_SHOE_IDX = np.array(SHOE_CUE_INDEX)
 
 
 @dataclass(frozen=True)
@@ -143,10 +141,10 @@ class CameraPerceiver:
                              f"got {img.shape} {img.dtype}")
         member, change, box = self._silhouette(img)
         t1 = time.perf_counter()
-        xy = np.full((6, 2), np.nan)
-        cov = np.full((6, 2, 2), np.nan)
-        area = np.zeros(6)
-        conf = np.zeros(6)
+        xy = np.full((N_CUES, 2), np.nan)
+        cov = np.full((N_CUES, 2, 2), np.nan)
+        area = np.zeros(N_CUES)
+        conf = np.zeros(N_CUES)
         self.last_contours = {}
         if box[2] == 0:
             self.skin_tracker.step(np.zeros((1, 1), np.float32), (0, 0), (0, 0, 0, 0), None)
@@ -174,22 +172,22 @@ class CameraPerceiver:
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
         ridge = txy + (bx, by)
         if self.config.head_check:
-            seat = check_head(self.scene, xy[_HEAD], area[_HEAD], conf[_HEAD], ridge, tcov, skin, (bx, by))
+            seat = check_head(self.scene, xy[C_HEAD], area[C_HEAD], conf[C_HEAD], ridge, tcov, skin, (bx, by))
             if seat is not None:
-                xy[_HEAD], area[_HEAD], conf[_HEAD] = seat[0], seat[1], 0.5
+                xy[C_HEAD], area[C_HEAD], conf[C_HEAD] = seat[0], seat[1], 0.5
                 self.skin_tracker.reseat(SKIN_CUES.index("head"), seat[0], 2.0 * np.sqrt(seat[1] / np.pi))
         if np.isfinite(txy).all():
-            xy[_TORSO] = ridge
-            head_torso = (torso_from_head(xy[_HEAD], self.scene.head_radius(), ridge, self.config.torso_head_radii)
+            xy[C_TORSO] = ridge
+            head_torso = (torso_from_head(xy[C_HEAD], self.scene.head_radius(), ridge, self.config.torso_head_radii)
                           if self.config.torso_head_radii > 0 else None)
             if head_torso is not None:
-                xy[_TORSO] = head_torso
-            elif self.config.torso_head_shift_frac and np.isfinite(xy[_HEAD]).all():
+                xy[C_TORSO] = head_torso
+            elif self.config.torso_head_shift_frac and np.isfinite(xy[C_HEAD]).all():
                 # bias correction (docs/perception.md, Torso), for a studio that measured it
-                xy[_TORSO] -= self.config.torso_head_shift_frac * (xy[_HEAD] - xy[_TORSO])
-            cov[_TORSO] = tcov
-            area[_TORSO] = float(np.count_nonzero(sil))
-            conf[_TORSO] = 1.0
+                xy[C_TORSO] -= self.config.torso_head_shift_frac * (xy[C_HEAD] - xy[C_TORSO])
+            cov[C_TORSO] = tcov
+            area[C_TORSO] = float(np.count_nonzero(sil))
+            conf[C_TORSO] = 1.0
         t4 = time.perf_counter()
         if self.config.background_update_rate > 0:
             self.background.update(img, self.last_silhouette, self.config.background_update_rate)

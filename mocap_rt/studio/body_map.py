@@ -20,7 +20,7 @@ import numpy as np
 
 from mocap_rt.config import FileFormatError, loads_toml
 from mocap_rt.io.bvh import BvhClip, forward_kinematics, resample_motion
-from mocap_rt.names import JOINT_NAMES
+from mocap_rt.names import JOINT_NAMES, N_JOINTS, J
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +167,7 @@ class BodyMotion:
     @property
     def joints(self) -> np.ndarray:
         """(F, 20, 3) in JOINT_NAMES order."""
-        return self.points[:, : len(JOINT_NAMES)]
+        return self.points[:, :N_JOINTS]
 
     def point(self, name: str) -> np.ndarray:
         """(F, 3) one point's trajectory."""
@@ -175,8 +175,8 @@ class BodyMotion:
 
     def bone_lengths(self) -> np.ndarray:
         """(len(BONES),) median length of each bone over the clip, metres."""
-        a = np.array([JOINT_NAMES.index(b[0]) for b in BONES])
-        b = np.array([JOINT_NAMES.index(b[1]) for b in BONES])
+        a = np.array([J[b[0]] for b in BONES])
+        b = np.array([J[b[1]] for b in BONES])
         return np.median(np.linalg.norm(self.points[:, a] - self.points[:, b], axis=-1), axis=0)
 
 
@@ -214,7 +214,7 @@ def body_motion(clip: BvhClip, fps: float | None = None, n_frames: int | None = 
     pos = forward_kinematics(clip.skeleton, motion, include_end_sites=True)
     pts = _axes_to_world(map_points(clip.skeleton, pos, smap), smap.up) * smap.unit_m
     if placement != "none":
-        pelvis = pts[:, JOINT_NAMES.index("pelvis"), :2]
+        pelvis = pts[:, J["pelvis"], :2]
         origin = pelvis[0] if placement == "first" else 0.5 * (pelvis.min(axis=0) + pelvis.max(axis=0))
         feet = [POINT_NAMES.index(n) for n in ("toe_l", "toe_r", "heel_l", "heel_r")]
         low = np.percentile(pts[:, feet, 2].min(axis=1), FLOOR_PERCENTILE)
