@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv if argv is not None else [])
 
     from mocap_rt.geometry.ray_triangulator import RayTriangulator
-    from mocap_rt.geometry.triangulate import midpoint_two_rays, triangulate_dlt, triangulate_points
+    from mocap_rt.geometry.triangulate import midpoint_two_rays, triangulate_dlt, triangulate_points, triangulate_rays
 
     cams, cues, uv, weights = _scene()
     fast6 = RayTriangulator(cams)
@@ -69,6 +69,10 @@ def main(argv: list[str] | None = None) -> int:
         return midpoint_two_rays(o1, d1, o2, d2)[0]
 
     def numpy_nview():
+        rays = [cam.rays(uv[c]) for c, cam in enumerate(cams)]
+        return triangulate_rays(np.stack([o for o, _ in rays]), np.stack([d for _, d in rays]), weights)
+
+    def entry_nview():
         return triangulate_points(cams, uv, weights)
 
     def numpy_dlt():
@@ -85,7 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     methods = [
         ("undistort 36 px only (cv2, 6 calls)", undistort_only),
         ("two-ray midpoint, numpy+cv2", numpy_two_ray),
-        ("N-view rays LSQ, numpy+cv2 (triangulate_points)", numpy_nview),
+        ("N-view rays LSQ, numpy+cv2 (triangulate_rays)", numpy_nview),
+        ("N-view, one call (triangulate_points)", entry_nview),
         ("N-view DLT, numpy+cv2 (triangulate_dlt)", numpy_dlt),
         ("two-ray LSQ, numba RayTriangulator", numba_two_ray),
         ("N-view rays LSQ, numba RayTriangulator", numba_nview),

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from mocap_rt.geometry.camera import Camera
+from mocap_rt.geometry.lens import dist8, distort
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.names import LR_PAIRS
 
@@ -46,9 +47,7 @@ class RigProjector:
         self.K = np.stack([c.K for c in cameras])                    # (C, 3, 3)
         self.centers = np.stack([c.center for c in cameras])         # (C, 3)
         self.size = np.array([c.size for c in cameras], dtype=np.float64)  # (C, 2)
-        self.dist = np.zeros((len(cameras), 8))
-        for i, c in enumerate(cameras):
-            self.dist[i, : c.dist.size] = c.dist
+        self.dist = np.stack([dist8(c.dist) for c in cameras])       # (C, 8)
         self._distorted = bool(np.any(self.dist))
         self._Rt = np.ascontiguousarray(np.transpose(self.R, (0, 2, 1)))  # row vectors: X @ R^T
         K = self.K
@@ -61,12 +60,7 @@ class RigProjector:
         with np.errstate(divide="ignore", invalid="ignore"):
             x, y = pc[..., 0] / z, pc[..., 1] / z
         if self._distorted:
-            k1, k2, p1, p2, k3, k4, k5, k6 = (self.dist[:, i:i + 1] for i in range(8))
-            r2 = x * x + y * y
-            r4, r6 = r2 * r2, r2 * r2 * r2
-            radial = (1 + k1 * r2 + k2 * r4 + k3 * r6) / (1 + k4 * r2 + k5 * r4 + k6 * r6)
-            x, y = (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
-                    y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)
+            x, y = distort(x, y, self.dist.T[:, :, None])                # coefficients (C, 1) each
         uv = np.empty(pc.shape[:2] + (2,))
         uv[..., 0] = self._fx * x + self._skew * y + self._cx
         uv[..., 1] = self._fy * y + self._cy

@@ -15,7 +15,7 @@ from numba import njit
 
 from mocap_rt.geometry.board import BoardSpec
 from mocap_rt.geometry.camera import Camera
-from mocap_rt.geometry.ray_triangulator import _undistort
+from mocap_rt.geometry.lens import dist8, undistort_point
 
 __all__ = ["render_board_view"]
 
@@ -47,8 +47,7 @@ def render_board_view(camera: Camera, spec: BoardSpec, world_from_board: np.ndar
         return _finish(out, camera, supersample)
     map_x = np.empty((y1 - y0, x1 - x0), np.float32)
     map_y = np.empty_like(map_x)
-    dist = np.zeros(8)
-    dist[: hi.dist.size] = hi.dist
+    dist = dist8(hi.dist)
     to_sheet = np.array([px_per_square / spec.square_m, margin - 0.5])   # metres -> sheet pixels
     _sheet_maps(x0, y0, np.linalg.inv(hi.K), dist, hi.R, hi.center, B, c, to_sheet, map_x, map_y)
     out[y0:y1, x0:x1] = cv2.remap(sheet, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
@@ -65,7 +64,7 @@ def _sheet_maps(x0: int, y0: int, kinv: np.ndarray, dist: np.ndarray, R: np.ndar
     num = (c[0] - origin[0]) * n0 + (c[1] - origin[1]) * n1 + (c[2] - origin[2]) * n2
     for i in range(map_x.shape[0]):
         for j in range(map_x.shape[1]):
-            x, y = _undistort(float(x0 + j), float(y0 + i), kinv, dist)
+            x, y = undistort_point(float(x0 + j), float(y0 + i), kinv, dist)
             d0 = R[0, 0] * x + R[1, 0] * y + R[2, 0]
             d1 = R[0, 1] * x + R[1, 1] * y + R[2, 1]
             d2 = R[0, 2] * x + R[1, 2] * y + R[2, 2]

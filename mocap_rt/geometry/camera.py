@@ -1,4 +1,5 @@
-"""Pinhole camera with OpenCV lens distortion.
+"""The calibrated camera: pinhole intrinsics, the lens (``mocap_rt.geometry.lens``) and the
+world -> camera pose; projection of world points and back-projection of pixels to rays.
 
 World convention (used everywhere in mocap_rt): right-handed, +Z up, metres.
 The floor is the plane Z = 0 and the capture volume is centred on the origin.
@@ -16,11 +17,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from mocap_rt.geometry.lens import dist8, distort, undistort
+
 # Below this depth (metres, camera frame) a point counts as behind the camera.
 MIN_DEPTH_M = 1e-9
-# cv2.undistortPoints: up to 50 fixed-point iterations, stop below 1e-15 (normalised units).
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-15)
-_EYE3 = np.eye(3)
 
 
 def as_points(points: np.ndarray, dim: int, name: str) -> np.ndarray:
@@ -156,17 +156,7 @@ class Camera:
 
     def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
         """(N, 2) ideal normalised coordinates -> (N, 2) distorted normalised coordinates."""
-        d = np.zeros(8)
-        d[: self.dist.size] = self.dist
-        k1, k2, p1, p2, k3, k4, k5, k6 = d
-        x, y = xy[:, 0], xy[:, 1]
-        r2 = x * x + y * y
-        r4 = r2 * r2
-        r6 = r4 * r2
-        radial = (1 + k1 * r2 + k2 * r4 + k3 * r6) / (1 + k4 * r2 + k5 * r4 + k6 * r6)
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        return np.stack([xd, yd], axis=1)
+        return np.stack(distort(xy[:, 0], xy[:, 1], dist8(self.dist)), axis=1)
 
     def project(self, points_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project world points into the image.
@@ -194,12 +184,8 @@ class Camera:
         # Remove K (skew included, as project() applies it) to get distorted normalised xy.
         Kinv = self._K_inv
         xy = uv @ Kinv[:2, :2].T + Kinv[:2, 2]
-        if self.dist.size == 0 or not np.any(self.dist):
-            return xy
-        # OpenCV's iterative undistortion with K = I (cv2 ignores K's skew, so it is removed
-        # above); more iterations and a tighter tolerance than the default, at no real cost.
-        out = cv2.undistortPoints(xy.reshape(-1, 1, 2), _EYE3, self.dist, None, None, None, _UNDISTORT_CRITERIA)
-        return out.reshape(-1, 2)
+        # OpenCV's iterative undistortion with K = I (cv2 ignores K's skew, so it is removed above)
+        return undistort(xy, self.dist)
 
     def rays(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Back-project pixels to world rays.

@@ -1,13 +1,11 @@
-"""Per-frame triangulation of a few cues from a fixed rig, in one compiled kernel.
+"""The compiled N-view triangulation kernel and ``RayTriangulator``, its fixed-rig form.
 
-:func:`mocap_rt.geometry.triangulate.triangulate_points` spends most of its time in
-per-call numpy/OpenCV overhead (six ``cv2.undistortPoints`` calls, a dozen small array
-operations). For the real-time path (six cues x six cameras, every frame) this module
-precomputes what depends on the rig only and runs undistortion, back-projection and
-the weighted least-squares ray intersection in a single numba kernel.
-
-The result equals :func:`~mocap_rt.geometry.triangulate.triangulate_points` (without
-refinement) to ~1e-12 m; tests check it against that NumPy reference.
+Owns the weighted least-squares ray intersection run on distorted pixels in one numba
+kernel (undistortion by ``mocap_rt.geometry.lens``, back-projection, 3x3 solve);
+``RayTriangulator`` precomputes what depends on the rig only, for the real-time path (six
+cues x six cameras, every frame). ``mocap_rt.geometry.triangulate.triangulate_points`` is the
+one-call entry on the same kernel. The result equals the NumPy reference
+(:func:`~mocap_rt.geometry.triangulate.triangulate_rays` on ``Camera.rays``) to ~1e-12 m.
 World frame: right-handed, +Z up, metres.
 """
 
@@ -19,38 +17,13 @@ import numpy as np
 from numba import njit
 
 from mocap_rt.geometry.camera import Camera
+from mocap_rt.geometry.lens import dist8, undistort_point
 
-# OpenCV-style fixed-point undistortion: at most this many iterations, stopping early
-# once the normalised coordinates move less than UNDISTORT_EPS between iterations.
-UNDISTORT_MAX_ITER = 50
-UNDISTORT_EPS = 1e-15
 # det(A) / (trace(A) / 3)^3 of the 3x3 normal matrix below which the rays are treated
 # as parallel (about 1e-7 rad between two rays).
 SINGULAR_DET_RATIO = 1e-14
 
-__all__ = ["RayTriangulator", "undistort_normalized"]
-
-
-@njit(cache=True, nogil=True)
-def _undistort(u: float, v: float, kinv: np.ndarray, dist: np.ndarray) -> tuple[float, float]:
-    """Distorted pixel -> ideal normalised (x, y); cv::undistortPoints' iteration."""
-    x0 = kinv[0, 0] * u + kinv[0, 1] * v + kinv[0, 2]
-    y0 = kinv[1, 0] * u + kinv[1, 1] * v + kinv[1, 2]
-    k1, k2, p1, p2, k3, k4, k5, k6 = dist[0], dist[1], dist[2], dist[3], dist[4], dist[5], dist[6], dist[7]
-    x, y = x0, y0
-    if k1 == 0.0 and k2 == 0.0 and p1 == 0.0 and p2 == 0.0 and k3 == 0.0 and k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
-        return x, y
-    for _ in range(UNDISTORT_MAX_ITER):
-        r2 = x * x + y * y
-        icdist = (1.0 + ((k6 * r2 + k5) * r2 + k4) * r2) / (1.0 + ((k3 * r2 + k2) * r2 + k1) * r2)
-        dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        xn = (x0 - dx) * icdist
-        yn = (y0 - dy) * icdist
-        if abs(xn - x) < UNDISTORT_EPS and abs(yn - y) < UNDISTORT_EPS:
-            return xn, yn
-        x, y = xn, yn
-    return x, y
+__all__ = ["RayTriangulator"]
 
 
 @njit(cache=True, nogil=True)
@@ -72,7 +45,7 @@ def _triangulate_kernel(uv: np.ndarray, weights: np.ndarray, kinv: np.ndarray, d
             u, v = uv[c, n, 0], uv[c, n, 1]
             if not (w > 0.0) or not (np.isfinite(u) and np.isfinite(v)):
                 continue
-            x, y = _undistort(u, v, kinv[c], dist[c])
+            x, y = undistort_point(u, v, kinv[c], dist[c])
             d0 = rt[c, 0, 0] * x + rt[c, 0, 1] * y + rt[c, 0, 2]
             d1 = rt[c, 1, 0] * x + rt[c, 1, 1] * y + rt[c, 1, 2]
             d2 = rt[c, 2, 0] * x + rt[c, 2, 1] * y + rt[c, 2, 2]
@@ -115,23 +88,6 @@ def _triangulate_kernel(uv: np.ndarray, weights: np.ndarray, kinv: np.ndarray, d
     return 0
 
 
-@njit(cache=True, nogil=True)
-def _undistort_many(uv: np.ndarray, kinv: np.ndarray, dist: np.ndarray, out: np.ndarray) -> None:
-    for i in range(uv.shape[0]):
-        out[i, 0], out[i, 1] = _undistort(uv[i, 0], uv[i, 1], kinv, dist)
-
-
-def undistort_normalized(camera: Camera, uv: np.ndarray) -> np.ndarray:
-    """(N, 2) distorted pixels -> (N, 2) ideal normalised coordinates, like
-    :meth:`Camera.undistort_pixels` but compiled: for whole images (rendering, maps)."""
-    uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 2)
-    dist = np.zeros(8)
-    dist[: camera.dist.size] = camera.dist
-    out = np.empty_like(uv)
-    _undistort_many(uv, np.linalg.inv(camera.K), dist, out)
-    return out
-
-
 class RayTriangulator:
     """Triangulate N points from C fixed cameras in one compiled call.
 
@@ -149,11 +105,8 @@ class RayTriangulator:
         if not cams:
             raise ValueError("RayTriangulator needs at least one camera")
         self.cameras = cams
-        C = len(cams)
         self._kinv = np.ascontiguousarray(np.stack([np.linalg.inv(c.K) for c in cams]))
-        self._dist = np.zeros((C, 8))
-        for i, c in enumerate(cams):
-            self._dist[i, : c.dist.size] = c.dist
+        self._dist = np.stack([dist8(c.dist) for c in cams])
         self._rt = np.ascontiguousarray(np.stack([c.R.T for c in cams]))
         self._centers = np.ascontiguousarray(np.stack([c.center for c in cams]))
         self._ones: dict[int, np.ndarray] = {}

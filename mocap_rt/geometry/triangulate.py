@@ -209,16 +209,16 @@ def triangulate_points(cameras: Sequence[Camera], uv: np.ndarray, weights: np.nd
     refine : also minimise the reprojection error (:func:`refine_points`).
     Returns (N, 3) float64 metres, world frame; NaN where < 2 valid views.
 
-    Pixels are undistorted into world rays and intersected by weighted least squares
-    (:func:`triangulate_rays`).
+    The one entry point for points seen by calibrated cameras: pixels are undistorted into
+    world rays and intersected by weighted least squares in the compiled kernel of
+    :class:`~mocap_rt.geometry.ray_triangulator.RayTriangulator` (build that once instead
+    for a fixed rig called every frame; :func:`triangulate_rays` is the same least squares
+    in NumPy for rays from anywhere).
     """
+    from mocap_rt.geometry.ray_triangulator import RayTriangulator
+
     uv = _check_cameras(cameras, uv)
-    C, N, _ = uv.shape
-    origins = np.empty((C, N, 3))
-    dirs = np.empty((C, N, 3))
-    for c, cam in enumerate(cameras):
-        origins[c], dirs[c] = cam.rays(uv[c])
-    X = triangulate_rays(origins, dirs, weights)
+    X = RayTriangulator(cameras)(uv, _weights(weights, uv.shape[:2]))
     if refine:
         X = refine_points(cameras, uv, X, weights)
     return X

@@ -1,19 +1,8 @@
-"""The recorded multi-view stream format (version 1): reader and crash-safe writer.
+"""The reader of the recorded multi-view stream format (``mocap_rt.io.recording_format``).
 
-One directory per recording (full description in ``docs/recording-format.md``)::
-
-    recording.toml          [recording] format, version, fps, cameras, codec, segment_frames
-    rig.toml                the calibrated rig (``mocap_rt.geometry.rig`` TOML)
-    frames.csv              frame,<cam_1>,<cam_2>,...  capture timestamps in seconds
-    video/<cam>/seg_000000.avi ...  each holds ``segment_frames`` consecutive rows
-    backgrounds/<cam>/000.png ...   empty-scene frames (lossless)
-    truth.npz               studio recordings only (see docs)
-
-Row ``k`` of ``frames.csv`` is frame ``k`` of the stream (``k // segment_frames`` is
-its segment). A video segment is written as ``seg_NNNNNN.part.avi`` and renamed to
-``seg_NNNNNN.avi`` once closed, and each table row is flushed as it is written, so
-after a SIGKILL the recording opens with every frame of its closed segments: at most
-one segment (~1 s) is lost.
+Owns ``Recording``: opening a recording directory, checking it (``RecordingError`` naming
+the file and field), and reading its frames, backgrounds and truth. ``RecordingWriter``
+(``mocap_rt.io.recording_writer``) is importable from here too.
 """
 
 from __future__ import annotations
@@ -23,170 +12,30 @@ import io
 import logging
 import math
 import zipfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from mocap_rt.config import FileFormatError, dumps_toml, read_toml
-from mocap_rt.geometry.rig import Rig, RigFileError, read_rig, write_rig
-from mocap_rt.io.files import atomic_write, atomic_write_text
+from mocap_rt.config import read_toml
+from mocap_rt.geometry.rig import RigFileError, read_rig
+from mocap_rt.io.recording_format import (CODEC_EXT, FORMAT_NAME, SUPPORTED_VERSIONS, RecordingError,
+                                          segment_name)
+from mocap_rt.io.recording_writer import RecordingWriter
+
+__all__ = ["Recording", "RecordingError", "RecordingWriter"]
 
 log = logging.getLogger(__name__)
 
-FORMAT_NAME = "mocap_rt.recording"
-FORMAT_VERSION = 1
-SUPPORTED_VERSIONS = (1,)
-DEFAULT_CODEC = "MJPG"  # intra-only: exact seeks, a cut file loses only its own frames
-DEFAULT_JPEG_QUALITY = 95
-DEFAULT_SEGMENT_S = 1.0
 # Forward skips up to this many frames are read through instead of seeking.
 _MAX_GRAB_SKIP = 8
-_CODEC_EXT = {"MJPG": ".avi", "XVID": ".avi", "FFV1": ".avi", "mp4v": ".mp4"}
-
-
-class RecordingError(FileFormatError):
-    """A recording that cannot be read; the message names the file and field."""
 
 
 def _toml_value(v) -> str:
     """A value as it reads in the TOML file (``true``, ``nan``, ``0``)."""
     return str(v).lower() if isinstance(v, bool) or (isinstance(v, float) and not math.isfinite(v)) else repr(v)
 
-
-def _segment_name(index: int, ext: str, part: bool = False) -> str:
-    return f"seg_{index:06d}{'.part' if part else ''}{ext}"
-
-
-# ----------------------------------------------------------------------------- writer
-
-class RecordingWriter:
-    """Write a recording directory frame by frame (studio renders or live cameras).
-
-    rig : the cameras, in the order ``write_frame`` receives images.
-    fps : nominal frame rate, Hz.
-    codec : FOURCC of ``cv2.VideoWriter`` (MJPG, XVID, mp4v, FFV1).
-    segment_s : video segment length in seconds (the most a crash can lose).
-    """
-
-    def __init__(self, path: str | Path, rig: Rig, fps: float, codec: str = DEFAULT_CODEC,
-                 segment_s: float = DEFAULT_SEGMENT_S, jpeg_quality: int = DEFAULT_JPEG_QUALITY,
-                 source: str = "studio") -> None:
-        if codec not in _CODEC_EXT:
-            raise ValueError(f"codec must be one of {sorted(_CODEC_EXT)}, got {codec!r}")
-        if fps <= 0:
-            raise ValueError(f"fps must be > 0, got {fps}")
-        self.path = Path(path)
-        self.rig = rig
-        self.fps = float(fps)
-        self.codec = codec
-        self.ext = _CODEC_EXT[codec]
-        self.segment_frames = max(1, int(round(segment_s * fps)))
-        self.jpeg_quality = int(jpeg_quality)
-        self.path.mkdir(parents=True, exist_ok=True)
-        if (self.path / "recording.toml").exists():
-            raise FileExistsError(f"{self.path} already holds a recording; refusing to overwrite it")
-        for cam in rig.cameras:
-            (self.path / "video" / cam.name).mkdir(parents=True, exist_ok=True)
-        write_rig(rig, self.path / "rig.toml")
-        meta = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "fps": self.fps,
-                "cameras": list(rig.names), "codec": codec, "segment_frames": self.segment_frames,
-                "source": source}
-        atomic_write_text(self.path / "recording.toml", dumps_toml({"recording": meta}))
-        self._table = open(self.path / "frames.csv", "w", newline="", encoding="utf-8")
-        self._table.write("frame," + ",".join(rig.names) + "\n")
-        self._table.flush()
-        self._writers: list[cv2.VideoWriter] | None = None
-        self._segment = -1
-        self.n_frames = 0
-        self._last_frame: int | None = None
-
-    # -- video segments
-    def _open_segment(self) -> None:
-        self._segment += 1
-        fourcc = cv2.VideoWriter_fourcc(*self.codec)
-        self._writers = []
-        for cam in self.rig.cameras:
-            p = self.path / "video" / cam.name / _segment_name(self._segment, self.ext, part=True)
-            w = cv2.VideoWriter(str(p), cv2.CAP_FFMPEG, fourcc, self.fps, (cam.width, cam.height))
-            if not w.isOpened():
-                raise OSError(f"cv2.VideoWriter could not open {p} with codec {self.codec}")
-            if self.codec == "MJPG":
-                w.set(cv2.VIDEOWRITER_PROP_QUALITY, self.jpeg_quality)
-            self._writers.append(w)
-
-    def _close_segment(self) -> None:
-        if self._writers is None:
-            return
-        for cam, w in zip(self.rig.cameras, self._writers):
-            w.release()
-            d = self.path / "video" / cam.name
-            (d / _segment_name(self._segment, self.ext, part=True)).replace(
-                d / _segment_name(self._segment, self.ext))
-        self._writers = None
-
-    # -- public API
-    def write_backgrounds(self, camera: str | int, frames: np.ndarray) -> None:
-        """Empty-scene frames of one camera: (B, H, W, 3) uint8 BGR, stored lossless (PNG)."""
-        cam = self.rig[camera]
-        frames = np.asarray(frames)
-        if frames.ndim == 3:
-            frames = frames[None]
-        if frames.ndim != 4 or frames.shape[1:] != (cam.height, cam.width, 3) or frames.dtype != np.uint8:
-            raise ValueError(f"backgrounds of {cam.name} must be (B, {cam.height}, {cam.width}, 3) uint8, "
-                             f"got {frames.shape} {frames.dtype}")
-        d = self.path / "backgrounds" / cam.name
-        d.mkdir(parents=True, exist_ok=True)
-        for i, img in enumerate(frames):
-            if not cv2.imwrite(str(d / f"{i:03d}.png"), img):
-                raise OSError(f"could not write {d / f'{i:03d}.png'}")
-
-    def write_frame(self, frame_index: int, images: Sequence[np.ndarray],
-                    timestamps_s: Sequence[float]) -> None:
-        """Append one synchronised frame.
-
-        images : one (H, W, 3) uint8 BGR image per camera, in rig order.
-        timestamps_s : per-camera capture time in seconds (NaN if unknown), rig order.
-        """
-        n = len(self.rig)
-        if len(images) != n or len(timestamps_s) != n:
-            raise ValueError(f"write_frame needs {n} images and {n} timestamps, got "
-                             f"{len(images)} and {len(timestamps_s)}")
-        if self._last_frame is not None and frame_index <= self._last_frame:
-            raise ValueError(f"frame indices must increase: {frame_index} after {self._last_frame}")
-        if self.n_frames % self.segment_frames == 0:
-            self._close_segment()
-            self._open_segment()
-        for cam, w, img in zip(self.rig.cameras, self._writers, images):
-            if img.shape != (cam.height, cam.width, 3) or img.dtype != np.uint8:
-                raise ValueError(f"image for {cam.name} must be ({cam.height}, {cam.width}, 3) uint8, "
-                                 f"got {img.shape} {img.dtype}")
-            w.write(np.ascontiguousarray(img))
-        self._table.write(f"{int(frame_index)}," + ",".join(
-            "" if not math.isfinite(float(t)) else f"{float(t):.6f}" for t in timestamps_s) + "\n")
-        self._table.flush()
-        self.n_frames += 1
-        self._last_frame = int(frame_index)
-
-    def write_truth(self, truth: dict) -> None:
-        """Store the studio's ground truth (``truth.npz``, compressed; see the docs for keys)."""
-        with atomic_write(self.path / "truth.npz", "wb") as fh:
-            np.savez_compressed(fh, **{k: np.asarray(v) for k, v in truth.items()})
-
-    def close(self) -> None:
-        self._close_segment()
-        if not self._table.closed:
-            self._table.close()
-
-    def __enter__(self) -> "RecordingWriter":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-# ----------------------------------------------------------------------------- reader
 
 class Recording:
     """Read a recording directory; validates it on open (``RecordingError`` if bad).
@@ -239,14 +88,14 @@ class Recording:
             raise RecordingError(f"{p}: field 'fps' must be a positive finite number, got {_toml_value(fps)}")
         if isinstance(seg, bool) or seg <= 0:
             raise RecordingError(f"{p}: field 'segment_frames' must be an integer > 0, got {_toml_value(seg)}")
-        if rec["codec"] not in _CODEC_EXT:
+        if rec["codec"] not in CODEC_EXT:
             raise RecordingError(f"{p}: field 'codec' = {rec['codec']!r} unknown")
         self.fps = float(rec["fps"])
         self.camera_names = [str(c) for c in rec["cameras"]]
         self.codec = rec["codec"]
         self.segment_frames = int(rec["segment_frames"])
         self.source = str(rec.get("source", ""))
-        self._ext = _CODEC_EXT[self.codec]
+        self._ext = CODEC_EXT[self.codec]
 
     def _read_table(self) -> None:
         p = self.path / "frames.csv"
@@ -289,8 +138,8 @@ class Recording:
             raise RecordingError(f"{d}: video folder of camera {name!r} is missing")
         segs = sorted(d.glob("seg_[0-9][0-9][0-9][0-9][0-9][0-9]" + self._ext))
         for i, s in enumerate(segs):
-            if s.name != _segment_name(i, self._ext):
-                raise RecordingError(f"{d}: segment {_segment_name(i, self._ext)} is missing")
+            if s.name != segment_name(i, self._ext):
+                raise RecordingError(f"{d}: segment {segment_name(i, self._ext)} is missing")
         return segs
 
     def _limit_to_complete_segments(self) -> None:

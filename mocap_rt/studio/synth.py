@@ -19,7 +19,8 @@ import numpy as np
 
 from mocap_rt.geometry.rig import Rig, desktop_rig, ring_rig
 from mocap_rt.io.bvh import BvhClip, read_bvh
-from mocap_rt.io.recording import DEFAULT_CODEC, DEFAULT_JPEG_QUALITY, RecordingWriter
+from mocap_rt.io.recording_format import DEFAULT_CODEC, DEFAULT_JPEG_QUALITY
+from mocap_rt.io.recording_writer import RecordingWriter
 from mocap_rt.names import CUE_JOINT_INDEX, CUE_NAMES, JOINT_NAMES
 from mocap_rt.studio.body_map import POINT_NAMES, body_motion, bone_names
 from mocap_rt.studio.body_shape import body_primitives
