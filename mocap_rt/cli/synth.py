@@ -62,10 +62,14 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of noise, flicker and camera gains")
     p.add_argument("--placement", choices=("centre", "first", "none"), default="centre",
                    help="horizontal placement: centre the pelvis path, put the first frame at the origin, or keep")
-    p.add_argument("--noise", type=float, default=2.0, help="sensor noise sigma, grey levels")
-    p.add_argument("--flicker", type=float, default=0.0, help="global illumination flicker amplitude (0.05 = 5%%)")
-    p.add_argument("--gain-jitter", type=float, default=0.05, help="per-camera gain spread (fraction)")
-    p.add_argument("--wb-jitter", type=float, default=0.03, help="per-camera white-balance spread (fraction)")
+    p.add_argument("--config", metavar="FILE",
+                   help="settings TOML with a [render] table (RenderConfig fields: noise_sigma_levels, "
+                        "flicker_amplitude, flicker_hz, gain_jitter, white_balance_jitter, shadows, albedo_bgr); "
+                        "the flags below override it")
+    p.add_argument("--noise", type=float, help="sensor noise sigma, grey levels (RenderConfig's 2.0)")
+    p.add_argument("--flicker", type=float, help="global illumination flicker amplitude, 0.05 = 5%% (RenderConfig's 0)")
+    p.add_argument("--gain-jitter", type=float, help="per-camera gain spread, fraction (RenderConfig's 0.05)")
+    p.add_argument("--wb-jitter", type=float, help="per-camera white-balance spread, fraction (RenderConfig's 0.03)")
     p.add_argument("--no-shadows", action="store_true", help="do not cast the body's shadow on the floor")
     p.add_argument("--ambient", type=float, default=None, help="ambient light level (default: the scene's)")
     p.add_argument("--light", type=_light, action="append", default=None, metavar="AZ,EL,I[,noshadow]",
@@ -87,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
+    from mocap_rt.config import load_dataclass
     from mocap_rt.studio.render import RenderConfig
     from mocap_rt.studio.scene import StudioScene
     from mocap_rt.studio.synth import make_rig, synthesize
@@ -99,10 +104,12 @@ def run(args: argparse.Namespace) -> int:
     if args.fps <= 0 or args.cameras < 1:
         raise ValueError("--fps must be > 0 and --cameras >= 1")
     rig = make_rig(args.rig, args.cameras, args.size, args.radius, args.height, args.hfov)
-    albedo = {} if args.shoe_bgr is None else {"shoe": tuple(v / 255.0 for v in args.shoe_bgr)}
-    config = RenderConfig(noise_sigma_levels=args.noise, flicker_amplitude=args.flicker,
-                          gain_jitter=args.gain_jitter, white_balance_jitter=args.wb_jitter,
-                          shadows=not args.no_shadows, albedo_bgr=albedo)
+    config = load_dataclass(RenderConfig, args.config, "render") if args.config else RenderConfig()
+    flags = {"noise_sigma_levels": args.noise, "flicker_amplitude": args.flicker, "gain_jitter": args.gain_jitter,
+             "white_balance_jitter": args.wb_jitter, "shadows": False if args.no_shadows else None,
+             "albedo_bgr": None if args.shoe_bgr is None else
+             {**config.albedo_bgr, "shoe": tuple(v / 255.0 for v in args.shoe_bgr)}}
+    config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
     scene = StudioScene()
     if args.ambient is not None:
         scene = dataclasses.replace(scene, ambient=args.ambient)

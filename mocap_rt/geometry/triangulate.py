@@ -1,5 +1,9 @@
 """Triangulation: 3D points and line directions from two or more calibrated views.
 
+Owns the one-call entry for points seen by calibrated cameras (``triangulate_points``, on
+the compiled kernel of ``ray_triangulator``), the NumPy solvers for rays and DLT, and 3D
+line directions.
+
 Seed digest A.3 (eq. 5, the two-ray closest point in normalised Plücker form),
 B.2 (3D line direction from two views) and B.3 (linear N-view point).
 

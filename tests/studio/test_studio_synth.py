@@ -146,3 +146,32 @@ def test_every_shared_clip_gives_a_replayable_recording(data_dir, tmp_path):
         assert np.isfinite(t["joints"]).all() and np.isfinite(t["cues_2d"]).all(), clip.name
         # the subject is in view of the ring's cameras
         assert (t["cue_visibility"][:, :, CUE_NAMES.index("torso")] > 0.2).all(), clip.name
+
+
+def test_synth_config_file_sets_the_render_config_and_flags_override(data_dir, tmp_path, monkeypatch, capsys):
+    """--config's [render] table is the RenderConfig synthesize gets; a flag given overrides its key."""
+    from types import SimpleNamespace
+
+    import mocap_rt.studio.synth as synth
+    from mocap_rt.studio.render import RenderConfig
+
+    got = {}
+
+    def fake(motion, out, **kw):
+        got.update(kw)
+        return SimpleNamespace(out=out, n_frames=0, n_images=0, total_s=0.0, render_s=0.0, encode_s=0.0)
+
+    monkeypatch.setattr(synth, "synthesize", fake)
+    cfg = tmp_path / "r.toml"
+    cfg.write_text("[render]\nnoise_sigma_levels = 0.5\nflicker_hz = 2.0\nshadows = false\n"
+                   "[render.albedo_bgr]\nshirt = [0.1, 0.2, 0.3]\n")
+    argv = ["synth", "--motion", str(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh"), "--out", str(tmp_path / "o"),
+            "--config", str(cfg), "--no-progress"]
+    assert cli_main([*argv, "--flicker", "0.1"]) == 0
+    assert got["config"] == RenderConfig(noise_sigma_levels=0.5, flicker_amplitude=0.1, flicker_hz=2.0,
+                                         shadows=False, albedo_bgr={"shirt": [0.1, 0.2, 0.3]})
+    cfg.write_text("[render]\nnoise = 0.5\n")
+    assert cli_main(argv) == 2
+    assert capsys.readouterr().err.strip().endswith("r.toml [render]: unknown key(s) ['noise'] (known: ['albedo_bgr', "
+                                                    "'flicker_amplitude', 'flicker_hz', 'gain_jitter', 'noise_sigma_levels', "
+                                                    "'shadows', 'white_balance_jitter'])")
