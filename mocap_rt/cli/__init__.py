@@ -39,8 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# what a bad input raises: the project's errors (RecordingError, RigFileError, BvhError,
-# MarkerFileError, OutputError ... are ValueErrors) and the OS's (missing files, permissions)
+# what a bad input raises: the project's errors (mocap_rt.config.FileFormatError and its
+# subclasses RecordingError, RigFileError, BvhError ..., OutputError: all ValueErrors) and the
+# OS's (missing files, permissions)
 USER_ERRORS = (ValueError, OSError)
 
 
