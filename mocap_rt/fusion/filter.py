@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap_rt.names import N_CUES
+
 
 @dataclass(frozen=True)
 class FilterConfig:
@@ -45,7 +47,7 @@ class CueFilter:
     state, ``last_update_s (N,)``; ``alive (N,)`` bool.
     """
 
-    def __init__(self, n: int = 6, config: FilterConfig = FilterConfig()) -> None:
+    def __init__(self, n: int = N_CUES, config: FilterConfig = FilterConfig()) -> None:
         self.config = config
         self.pos = np.full((n, 3), np.nan)
         self.vel = np.zeros((n, 3))

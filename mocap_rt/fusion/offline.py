@@ -26,7 +26,7 @@ import numpy as np
 
 from mocap_rt.fusion.evaluate import Accuracy, accuracy, align_truth, truth_camera_cues
 from mocap_rt.fusion.tracker import BodyTracker, FusionConfig, FusionResult
-from mocap_rt.names import CUE_NAMES, JOINT_NAMES
+from mocap_rt.names import CUE_NAMES, JOINT_NAMES, N_CUES
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,7 @@ class ProcessOutput:
     pan_rad: np.ndarray
     timings_ms: dict = field(default_factory=dict)
     fusion_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))   # (F,) per frame
-    camera_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 6, 2)))  # (C, F, 6, 2) 2D cues, px
+    camera_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, N_CUES, 2)))  # (C, F, 6, 2) 2D cues, px
     accuracy: Accuracy | None = None
 
 
