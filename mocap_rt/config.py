@@ -84,6 +84,8 @@ def _fmt(value) -> str:
         return _fmt(value.tolist())
     if isinstance(value, (list, tuple)):
         return "[ " + ", ".join(_fmt(v) for v in value) + "]"
+    if isinstance(value, dict):                        # an inline table (inside a list)
+        return "{ " + ", ".join(f"{k} = {_fmt(v)}" for k, v in value.items()) + " }"
     raise TypeError(f"cannot write {type(value).__name__} to TOML")
 
 
@@ -113,7 +115,11 @@ def dataclass_to_dict(obj) -> dict:
         v = getattr(obj, f.name)
         if v is None:
             continue
-        out[f.name] = dataclass_to_dict(v) if dataclasses.is_dataclass(v) else v
+        if dataclasses.is_dataclass(v):
+            v = dataclass_to_dict(v)
+        elif isinstance(v, (tuple, list)) and any(dataclasses.is_dataclass(x) for x in v):
+            v = [dataclass_to_dict(x) for x in v]              # written as inline tables
+        out[f.name] = v
     return out
 
 
@@ -154,10 +160,25 @@ def _convert(hint, value, where: str, key: str):
             raise bad("a string")
         return value
     if typing.get_origin(base) is tuple or base is tuple:
-        if not isinstance(value, list):
+        if not isinstance(value, (list, tuple)):
             raise bad("a list")
-        return tuple(value)
+        args = typing.get_args(base)
+        if len(args) == 2 and args[1] is Ellipsis:          # tuple[X, ...]
+            args = (args[0],) * len(value)
+        elif args and len(args) != len(value):
+            raise bad(f"a list of {len(args)}")
+        if not args:
+            return tuple(value)
+        return tuple(_item(a, v, where, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
     return value
+
+
+def _item(hint, value, where: str, key: str):
+    """One element of a tuple field: a settings dataclass from an inline table, else ``_convert``."""
+    sub = _dataclass_of(hint)
+    if sub is not None:
+        return dataclass_from_dict(sub, value, f"{where} {key}")
+    return _convert(hint, value, where, key)
 
 
 def dataclass_from_dict(cls: type[T], table: dict, where: str, base: T | None = None) -> T:

@@ -130,3 +130,45 @@ def test_every_reader_error_is_a_file_format_error():
     for cls in (RigFileError, BvhError, RecordingError, MarkerFileError, SegmentError, ColourModelError,
                 SkeletonMapError):
         assert issubclass(cls, FileFormatError) and issubclass(cls, ValueError)
+
+
+def _settings_dataclasses():
+    """Every settings dataclass of the library (``*Config``, ``*Params``, ``*Thresholds``,
+    ``BoneLengths``, ``StudioScene``), found by walking the package."""
+    import dataclasses
+    import importlib
+    import pkgutil
+
+    import mocap_rt
+
+    found = {}
+    for m in pkgutil.walk_packages(mocap_rt.__path__, "mocap_rt."):
+        mod = importlib.import_module(m.name)
+        for name, obj in vars(mod).items():
+            if (isinstance(obj, type) and dataclasses.is_dataclass(obj) and obj.__module__ == mod.__name__
+                    and (name.endswith(("Config", "Params", "Thresholds")) or name in ("BoneLengths", "StudioScene"))):
+                found[f"{mod.__name__}.{name}"] = obj
+    return found
+
+
+def test_every_settings_dataclass_is_loadable_from_its_file(tmp_path):
+    found = _settings_dataclasses()
+    assert {"mocap_rt.fusion.tracker.FusionConfig", "mocap_rt.perception.pipeline.PerceptionConfig",
+            "mocap_rt.studio.render.RenderConfig", "mocap_rt.studio.scene.StudioScene"} <= set(found)
+    for name, cls in found.items():
+        default = cls()
+        path = tmp_path / f"{name}.toml"
+        path.write_text(dumps_toml({"t": dataclass_to_dict(default)}))
+        assert load_dataclass(cls, path, "t") == default, name
+
+
+def test_tuples_of_settings_are_checked_element_by_element(tmp_path):
+    from mocap_rt.studio.scene import StudioScene
+
+    path = tmp_path / "s.toml"
+    path.write_text("lights = [{ direction = [0.0, 0.0, 1.0], intensity = 0.5, colour = 1 }]\n")
+    with pytest.raises(FileFormatError, match=r"s\.toml lights\[0\]: unknown key\(s\) \['colour'\]"):
+        load_dataclass(StudioScene, path)
+    path.write_text("ceiling_bgr = [0.2, 0.2]\n")
+    with pytest.raises(FileFormatError, match=r"s\.toml: ceiling_bgr = \[0.2, 0.2\] is not a list of 3"):
+        load_dataclass(StudioScene, path)

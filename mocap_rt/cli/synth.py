@@ -63,9 +63,9 @@ def register(subparsers) -> None:
     p.add_argument("--placement", choices=("centre", "first", "none"), default="centre",
                    help="horizontal placement: centre the pelvis path, put the first frame at the origin, or keep")
     p.add_argument("--config", metavar="FILE",
-                   help="settings TOML with a [render] table (RenderConfig fields: noise_sigma_levels, "
-                        "flicker_amplitude, flicker_hz, gain_jitter, white_balance_jitter, shadows, albedo_bgr); "
-                        "the flags below override it")
+                   help="settings TOML: a [render] table (RenderConfig: noise_sigma_levels, flicker_amplitude, "
+                        "flicker_hz, gain_jitter, white_balance_jitter, shadows, albedo_bgr) and a [scene] table "
+                        "(StudioScene: floor, backdrop, lights, ambient); the flags below override it")
     p.add_argument("--noise", type=float, help="sensor noise sigma, grey levels (RenderConfig's 2.0)")
     p.add_argument("--flicker", type=float, help="global illumination flicker amplitude, 0.05 = 5%% (RenderConfig's 0)")
     p.add_argument("--gain-jitter", type=float, help="per-camera gain spread, fraction (RenderConfig's 0.05)")
@@ -92,9 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from mocap_rt.config import load_dataclass
-    from mocap_rt.studio.render import RenderConfig
-    from mocap_rt.studio.scene import StudioScene
-    from mocap_rt.studio.synth import make_rig, synthesize
+    from mocap_rt.studio.synth import StudioConfig, make_rig, synthesize
 
     from mocap_rt.studio.variants import load_motion
 
@@ -104,13 +102,14 @@ def run(args: argparse.Namespace) -> int:
     if args.fps <= 0 or args.cameras < 1:
         raise ValueError("--fps must be > 0 and --cameras >= 1")
     rig = make_rig(args.rig, args.cameras, args.size, args.radius, args.height, args.hfov)
-    config = load_dataclass(RenderConfig, args.config, "render") if args.config else RenderConfig()
+    settings = load_dataclass(StudioConfig, args.config) if args.config else StudioConfig()
+    config = settings.render
     flags = {"noise_sigma_levels": args.noise, "flicker_amplitude": args.flicker, "gain_jitter": args.gain_jitter,
              "white_balance_jitter": args.wb_jitter, "shadows": False if args.no_shadows else None,
              "albedo_bgr": None if args.shoe_bgr is None else
              {**config.albedo_bgr, "shoe": tuple(v / 255.0 for v in args.shoe_bgr)}}
     config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
-    scene = StudioScene()
+    scene = settings.scene
     if args.ambient is not None:
         scene = dataclasses.replace(scene, ambient=args.ambient)
     if args.light:

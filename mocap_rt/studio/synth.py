@@ -12,7 +12,7 @@ import logging
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,16 @@ log = logging.getLogger(__name__)
 
 # Empty-studio frames written per camera (each with its own sensor noise).
 DEFAULT_N_BACKGROUNDS = 5
+
+
+@dataclass(frozen=True)
+class StudioConfig:
+    """The studio's settings file (``mocap-rt synth --config``): a ``[render]`` table
+    (``RenderConfig``: sensor and camera effects) and a ``[scene]`` table (``StudioScene``:
+    studio geometry, colours, lights as ``lights = [{ direction = [x, y, z], intensity = 0.6 }]``)."""
+
+    render: RenderConfig = field(default_factory=RenderConfig)
+    scene: StudioScene = field(default_factory=StudioScene)
 
 
 @dataclass(frozen=True)

@@ -154,6 +154,7 @@ def test_synth_config_file_sets_the_render_config_and_flags_override(data_dir, t
 
     import mocap_rt.studio.synth as synth
     from mocap_rt.studio.render import RenderConfig
+    from mocap_rt.studio.scene import Light, StudioScene
 
     got = {}
 
@@ -164,12 +165,16 @@ def test_synth_config_file_sets_the_render_config_and_flags_override(data_dir, t
     monkeypatch.setattr(synth, "synthesize", fake)
     cfg = tmp_path / "r.toml"
     cfg.write_text("[render]\nnoise_sigma_levels = 0.5\nflicker_hz = 2.0\nshadows = false\n"
-                   "[render.albedo_bgr]\nshirt = [0.1, 0.2, 0.3]\n")
+                   "[render.albedo_bgr]\nshirt = [0.1, 0.2, 0.3]\n"
+                   "[scene]\nambient = 0.3\nlights = [{ direction = [0.0, -1.0, 1.0], intensity = 0.7 }]\n")
     argv = ["synth", "--motion", str(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh"), "--out", str(tmp_path / "o"),
             "--config", str(cfg), "--no-progress"]
     assert cli_main([*argv, "--flicker", "0.1"]) == 0
     assert got["config"] == RenderConfig(noise_sigma_levels=0.5, flicker_amplitude=0.1, flicker_hz=2.0,
                                          shadows=False, albedo_bgr={"shirt": [0.1, 0.2, 0.3]})
+    assert got["scene"] == StudioScene(ambient=0.3, lights=(Light((0.0, -1.0, 1.0), 0.7),))
+    assert cli_main([*argv, "--ambient", "0.5"]) == 0
+    assert got["scene"].ambient == 0.5 and got["scene"].lights == (Light((0.0, -1.0, 1.0), 0.7),)
     cfg.write_text("[render]\nnoise = 0.5\n")
     assert cli_main(argv) == 2
     assert capsys.readouterr().err.strip().endswith("r.toml [render]: unknown key(s) ['noise'] (known: ['albedo_bgr', "
