@@ -81,7 +81,7 @@ class FusionConfig:
     torso_max_reproj_px: float = 15.0      # the same for the torso (its 2D points are silhouette
                                            # centres, not projections of one 3D point)
     consensus_views: bool = False          # restart outlier rejection from the largest consensus set of views
-                                           # (views.triangulate_cues); off: measured worse on cmu_131_01
+                                           # (views.triangulate_cues); off: docs/body.md says why
     min_confidence: float = 0.05           # 2D cues below this are ignored
     fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
     duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
