@@ -20,10 +20,11 @@ def register(subparsers) -> None:
     p.add_argument("--config", type=Path, metavar="FILE",
                    help="settings TOML: [perception] (PerceptionConfig) and [fusion] (FusionConfig) tables "
                         "(mocap_rt/pipeline_config.py); the flags below override it")
-    p.add_argument("--views", choices=VIEW_MODES,
+    # SUPPRESS: absent from args unless given (the config's value stands), no "(default: None)"
+    p.add_argument("--views", choices=VIEW_MODES, default=argparse.SUPPRESS,
                    help="triangulate from all cameras that see a cue, or the frontal pair (A.6) "
                         "(default: the config's, 'all')")
-    p.add_argument("--ik", choices=IK_MODES,
+    p.add_argument("--ik", choices=IK_MODES, default=argparse.SUPPRESS,
                    help="analytic two-link IK, or analytic + improved-CCD refinement (default: the config's, 'analytic')")
     p.add_argument("--bones", metavar="TOML", help="subject bone lengths ([bones] table); "
                    "default: estimated from the first seconds of cues")
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     settings = load_pipeline_config(args.config) if args.config else None
     claim_outputs(outputs, args.overwrite)
     cfg = settings.fusion if settings else FusionConfig()
-    flags = {"views": args.views, "ik": args.ik,
+    flags = {"views": getattr(args, "views", None), "ik": getattr(args, "ik", None),
              "bone_lengths": read_bone_lengths(args.bones) if args.bones else None}
     cfg = replace(cfg, **{k: v for k, v in flags.items() if v is not None})
     out = process_recording(rec, args.out, cfg, settings.perception if settings else None,

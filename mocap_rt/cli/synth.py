@@ -66,10 +66,11 @@ def register(subparsers) -> None:
                    help="settings TOML: a [render] table (RenderConfig: noise_sigma_levels, flicker_amplitude, "
                         "flicker_hz, gain_jitter, white_balance_jitter, shadows, albedo_bgr) and a [scene] table "
                         "(StudioScene: floor, backdrop, lights, ambient); the flags below override it")
-    p.add_argument("--noise", type=float, help="sensor noise sigma, grey levels (RenderConfig's 2.0)")
-    p.add_argument("--flicker", type=float, help="global illumination flicker amplitude, 0.05 = 5%% (RenderConfig's 0)")
-    p.add_argument("--gain-jitter", type=float, help="per-camera gain spread, fraction (RenderConfig's 0.05)")
-    p.add_argument("--wb-jitter", type=float, help="per-camera white-balance spread, fraction (RenderConfig's 0.03)")
+    # SUPPRESS: absent from args unless given (the config's value stands), no "(default: None)"
+    p.add_argument("--noise", type=float, default=argparse.SUPPRESS, help="sensor noise sigma, grey levels (RenderConfig's 2.0)")
+    p.add_argument("--flicker", type=float, default=argparse.SUPPRESS, help="global illumination flicker amplitude, 0.05 = 5%% (RenderConfig's 0)")
+    p.add_argument("--gain-jitter", type=float, default=argparse.SUPPRESS, help="per-camera gain spread, fraction (RenderConfig's 0.05)")
+    p.add_argument("--wb-jitter", type=float, default=argparse.SUPPRESS, help="per-camera white-balance spread, fraction (RenderConfig's 0.03)")
     p.add_argument("--no-shadows", action="store_true", help="do not cast the body's shadow on the floor")
     p.add_argument("--ambient", type=float, default=None, help="ambient light level (default: the scene's)")
     p.add_argument("--light", type=_light, action="append", default=None, metavar="AZ,EL,I[,noshadow]",
@@ -104,8 +105,9 @@ def run(args: argparse.Namespace) -> int:
     rig = make_rig(args.rig, args.cameras, args.size, args.radius, args.height, args.hfov)
     settings = load_dataclass(StudioConfig, args.config) if args.config else StudioConfig()
     config = settings.render
-    flags = {"noise_sigma_levels": args.noise, "flicker_amplitude": args.flicker, "gain_jitter": args.gain_jitter,
-             "white_balance_jitter": args.wb_jitter, "shadows": False if args.no_shadows else None,
+    given = vars(args)
+    flags = {"noise_sigma_levels": given.get("noise"), "flicker_amplitude": given.get("flicker"),
+             "gain_jitter": given.get("gain_jitter"), "white_balance_jitter": given.get("wb_jitter"), "shadows": False if args.no_shadows else None,
              "albedo_bgr": None if args.shoe_bgr is None else
              {**config.albedo_bgr, "shoe": tuple(v / 255.0 for v in args.shoe_bgr)}}
     config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
