@@ -22,10 +22,19 @@ def data_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def warm_kernels() -> dict:
-    """Every numba kernel compiled once for the session, in this process, before any test
-    starts nodes that would otherwise compile them at once (``mocap_rt.warmup``; a no-op
-    when the cache's stamp matches the kernel sources)."""
-    from mocap_rt.warmup import DEFAULT_CLIP, ensure_warm
+    """Every numba kernel compiled once for the session before any test starts nodes that
+    would otherwise compile them at once (``python -m mocap_rt.warmup``; a no-op when the
+    cache's stamp matches the kernel sources). In a child process: this one has usually run
+    the kernels already (library tests), and numba does not write the cache of a kernel that
+    is already compiled in memory, so a warm-up here would stamp an empty cache as warm and
+    every node would compile on its own."""
+    import subprocess
+    import sys
+
+    from mocap_rt.warmup import DEFAULT_CLIP, read_stamp
 
     clip = data_root() / DEFAULT_CLIP
-    return ensure_warm(clip if clip.is_file() else None)
+    argv = [sys.executable, "-m", "mocap_rt.warmup"] + (["--motion", str(clip)] if clip.is_file() else [])
+    out = subprocess.run(argv, capture_output=True, text=True, timeout=1200, cwd=REPO)
+    assert out.returncode == 0, f"kernel warm-up failed: {out.stdout[-2000:]}{out.stderr[-2000:]}"
+    return read_stamp()

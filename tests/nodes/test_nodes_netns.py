@@ -29,6 +29,9 @@ pytestmark = [pytest.mark.slow, pytest.mark.netns]
 SUBNET = "10.231.{}.{}"          # RFC 1918, used only inside the test's namespaces
 PORT = 7447
 WINDOW_S = 4.0                   # the probe counts poses this long once every node is ready
+FPS = 10                         # trigger rate: these nodes run without real-time priority, and a
+                                 # 100-ms period leaves a loaded or 3x slower machine time for every
+                                 # frame (what is tested is the links, not the rate)
 READY_TIMEOUT_S = 120.0          # node start-up (imports, warm-up) on a loaded machine
 
 
@@ -110,7 +113,7 @@ def test_nodes_in_separate_network_namespaces(tmp_path, tmp_path_factory, data_d
                                           cwd=str(tmp_path)))
             return procs[-1]
 
-        start("fusion", ["-m", "nodes.fusion_node", *common, "--fps", "30"], [])
+        start("fusion", ["-m", "nodes.fusion_node", *common, "--fps", str(FPS)], [])
         for cam, role in (("cam_1", "cam1"), ("cam_4", "cam4")):
             start(role, ["-m", "nodes.camera_worker", *common, "--camera", cam, "--source", f"replay:{walk}",
                          "--node", f"worker-{cam}"], ["fusion"])
@@ -118,7 +121,7 @@ def test_nodes_in_separate_network_namespaces(tmp_path, tmp_path_factory, data_d
                                 "--wait-nodes", "fusion,worker-cam_1,worker-cam_4",
                                 "--timeout", str(READY_TIMEOUT_S)],
                       ["fusion", "cam1", "cam4"])
-        start("sync", ["-m", "nodes.sync", *common, "--fps", "30"], ["fusion", "cam1", "cam4", "probe"])
+        start("sync", ["-m", "nodes.sync", *common, "--fps", str(FPS)], ["fusion", "cam1", "cam4", "probe"])
         before = link_bytes(ns["fusion"], "eth0")
         probe.wait(timeout=READY_TIMEOUT_S + WINDOW_S + 30)
         logs = {p.name: p.read_text()[-1500:] for p in tmp_path.glob("*.log")}
@@ -127,7 +130,7 @@ def test_nodes_in_separate_network_namespaces(tmp_path, tmp_path_factory, data_d
         print(f"netns: ready after {summary['ready_after_s']} s, {summary['poses']} poses, cameras {summary['cameras_used']}, "
               f"{summary['all_cameras_frames']} with both cameras, {crossed} bytes through fusion's veth")
         assert summary["ready_after_s"] is not None, (summary, logs)
-        assert summary["poses"] > 0.5 * 30 * WINDOW_S, (summary, logs)
+        assert summary["poses"] > 0.5 * FPS * WINDOW_S, (summary, logs)
         assert summary["cameras_used"] == ["cam_1", "cam_4"], logs
         assert summary["all_cameras_frames"] > 0.5 * summary["poses"]
         frames = summary["frames"]

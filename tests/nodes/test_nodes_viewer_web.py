@@ -17,6 +17,7 @@ pytestmark = pytest.mark.slow
 VIEWER_WAIT_S = 150.0     # at most: wasm download + compile + first data, software rendering, loaded host
 SHOT_EVERY_S = 3.0
 PREVIEW_EVERY = 6         # fewer images: the software-rendered browser keeps up better
+WAIT_S = 90.0             # the first poses / the viewer's listening sockets (seconds when idle)
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +64,7 @@ def test_served_web_viewer_shows_the_service(chromium, tmp_path, tmp_path_factor
     browser = None
     try:
         L.start()
-        assert wait_for(lambda: len(L.monitor.poses) > 30, 30, L), "no poses"
+        assert wait_for(lambda: len(L.monitor.poses) > 30, WAIT_S, L), "no poses"
         # everything the viewer serves listens on loopback only (the web server, a low-priority
         # child of the viewer, may still be starting)
         viewer = psutil.Process(L.pid("viewer"))
@@ -71,7 +72,7 @@ def test_served_web_viewer_shows_the_service(chromium, tmp_path, tmp_path_factor
         def served():
             socks = _listening([viewer.pid] + [c.pid for c in viewer.children(recursive=True)])
             return socks if (("127.0.0.1", web) in socks) and (("127.0.0.1", grpc) in socks) else None
-        socks = wait_for(served, 30, L)
+        socks = wait_for(served, WAIT_S, L)
         assert socks, _listening([viewer.pid] + [c.pid for c in viewer.children(recursive=True)])
         assert all(ip == "127.0.0.1" for ip, _ in socks), socks
 
