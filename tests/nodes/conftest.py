@@ -1,9 +1,63 @@
-"""The end-to-end (slow) service tests start nodes: they get a warm kernel cache first."""
+"""The end-to-end (slow) service tests start nodes: they get a warm kernel cache first.
+
+``replay_run``: ONE ``mocap-rt run`` of the studio walk, shared by the tests of what such a run
+produces (the CLI's outputs in test_nodes_service, the cold kernel cache in test_nodes_lifecycle):
+a cluster start and a replay cost ~20 s, so they are not repeated per assertion.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
+from service_helpers import small_recording
+
+REPLAY_SPEED = 0.5          # 15 fps: a 67-ms period leaves a loaded or 3x slower machine time for
+                            # every camera of every frame (the rate is the benches' business)
 
 
 @pytest.fixture(autouse=True)
 def _warm_kernels_for_services(request):
     if request.node.get_closest_marker("slow") and not request.node.get_closest_marker("cold_cache"):
         request.getfixturevalue("warm_kernels")
+
+
+@dataclass(frozen=True)
+class ReplayRun:
+    """What ``mocap-rt run --source replay:WALK`` left: its recording, Rerun file, stats, logs,
+    the numba cache it started from empty, and the command's exit code and stderr."""
+
+    walk: Path
+    out: Path
+    returncode: int
+    stderr: str
+
+    @property
+    def stats(self) -> dict:
+        return json.loads((self.out / "stats.json").read_text())
+
+    rec = property(lambda self: self.out / "rec")
+    rrd = property(lambda self: self.out / "view.rrd")
+    logs = property(lambda self: self.out / "logs")
+    numba_cache = property(lambda self: self.out / "numba-cache")
+
+
+@pytest.fixture(scope="session")
+def replay_run(tmp_path_factory, data_dir) -> ReplayRun:
+    """One pass of the walk through the CLI with recorder and viewer on (the demo path), from an
+    EMPTY numba cache directory (``NUMBA_CACHE_DIR``): the launcher must build it once before any
+    node starts."""
+    walk = small_recording(tmp_path_factory.getbasetemp(), data_dir)
+    out = tmp_path_factory.mktemp("replay_run")
+    (out / "numba-cache").mkdir()
+    run = ReplayRun(walk, out, 0, "")
+    exe = str(Path(sys.executable).with_name("mocap-rt"))
+    proc = subprocess.run([exe, "run", "--source", f"replay:{walk}", "--record", str(run.rec),
+                           "--rerun", f"save:{run.rrd}", "--stats", str(out / "stats.json"), "--quiet",
+                           "--speed", str(REPLAY_SPEED), "--log-dir", str(run.logs)],
+                          env=dict(os.environ, NUMBA_CACHE_DIR=str(run.numba_cache)),
+                          capture_output=True, text=True, timeout=1800)
+    return ReplayRun(walk, out, proc.returncode, proc.stderr)

@@ -49,9 +49,12 @@ def test_live_videotestsrc_frames_arrive_in_bgr_with_capture_stamps():
         assert g.image.shape == (240, 320, 3) and g.image.dtype == np.uint8
         assert (g.image == [0, 0, 255]).all()
     t = np.array([g.t_mono_ns for g in grabs])
-    assert np.all(np.diff(t) > 0) and 0 <= now - t[-1] < 1e9
-    # the buffers' PTS, not the moment the grabber woke up: 30 fps apart (+- scheduling)
-    assert np.median(np.diff(t)) == pytest.approx(1e9 / 30, rel=0.2)
+    seq = np.array([g.seq for g in grabs])
+    # stamps on this host's monotonic clock (not the pipeline's running time from 0)
+    assert np.all(np.diff(t) > 0) and np.all(np.diff(seq) > 0) and 0 <= now - t[-1] < 10e9
+    # the buffers' PTS, not the moment the grabber woke up: 30 fps apart per buffer (a consumer
+    # slower than the source on a loaded machine skips buffers: the grabber keeps the newest)
+    assert np.median(np.diff(t) / np.diff(seq)) == pytest.approx(1e9 / 30, rel=0.2)
 
 
 def test_live_mjpeg_through_avdec_mjpeg_keeps_the_colours():

@@ -13,7 +13,7 @@ import psutil
 import pytest
 from service_helpers import small_recording, wait_for
 
-from nodes.launcher import Launcher, RunConfig, free_port
+from nodes.launcher import free_port
 
 pytestmark = pytest.mark.slow
 
@@ -113,16 +113,13 @@ def test_every_child_ends_on_ctrl_c_and_after_a_crash(walk, tmp_path):
 
 
 @pytest.mark.cold_cache
-def test_demo_path_from_an_empty_kernel_cache(walk, tmp_path, monkeypatch):
-    """An empty numba cache: the launcher builds it in one process before any node starts;
-    the nodes only load it (no cache file changes after the warm-up), and the replay's frames
-    nearly all give a pose (viewer and recorder on, as in the demo)."""
-    cache = tmp_path / "numba-cache"
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache))
-    cfg = RunConfig(rig_path=walk / "rig.toml", source=f"replay:{walk}", rerun=f"save:{tmp_path / 'demo.rrd'}",
-                    record=tmp_path / "poses", stats=tmp_path / "stats.json", status_line=False,
-                    log_dir=tmp_path / "logs")
-    stats = Launcher(cfg).run()
+def test_demo_path_from_an_empty_kernel_cache(replay_run):
+    """An empty numba cache (conftest.replay_run: the demo path, viewer and recorder on, with
+    ``NUMBA_CACHE_DIR`` an empty directory): the launcher builds it in one process before any
+    node starts; the nodes only load it (no cache file changes after the warm-up), and the
+    replay's frames nearly all give a pose."""
+    assert replay_run.returncode == 0, replay_run.stderr[-3000:]
+    cache, stats = replay_run.numba_cache, replay_run.stats
     stamp = json.loads((cache / "mocap_rt-numba-kernels.json").read_text())
     assert stamp["compiled"] > 10, stamp               # the warm-up compiled them ...
     t_stamp = os.stat(cache / "mocap_rt-numba-kernels.json").st_mtime
@@ -130,7 +127,7 @@ def test_demo_path_from_an_empty_kernel_cache(walk, tmp_path, monkeypatch):
     assert len(index) >= stamp["compiled"] // 2
     later = [p.name for p in index if p.stat().st_mtime > t_stamp]
     assert not later, f"nodes compiled kernels after the warm-up: {later}"     # ... nobody else
-    warm_log = (tmp_path / "logs" / "warmup.log").read_text()
+    warm_log = (replay_run.logs / "warmup.log").read_text()
     assert "kernel signatures compiled" in warm_log
     print(f"cold start: {stamp['compiled']} kernels compiled in {stamp['seconds']} s; "
           f"{stats['poses_published']}/{stats['frames_triggered']} poses, latency {stats['latency_ms']}")

@@ -16,8 +16,6 @@ from mocap_rt.io.recording import Recording
 pytestmark = pytest.mark.slow
 
 MAX_MEDIAN_CUE_ERROR_M = 0.10      # triangulated cues of the service vs the studio's truth
-CLI_SPEED = 0.5                    # the CLI run replays at 15 fps: a period of 67 ms leaves a loaded
-                                   # or 3x slower machine time for every camera of every frame
 CALIBRATION_POSES = 60             # fusion estimates the subject's bones from 2 s of poses (30 fps)
 
 
@@ -35,15 +33,12 @@ def _rrd_entities(path) -> str:
     return out.stdout
 
 
-def test_cli_run_replay_records_poses_and_rerun_file(walk, tmp_path):
-    rec, stats_path, rrd = tmp_path / "rec", tmp_path / "stats.json", tmp_path / "view.rrd"
-    exe = str(__import__("pathlib").Path(sys.executable).with_name("mocap-rt"))
-    proc = subprocess.run([exe, "run", "--source", f"replay:{walk}", "--record", str(rec),
-                           "--rerun", f"save:{rrd}", "--stats", str(stats_path), "--quiet",
-                           "--speed", str(CLI_SPEED), "--log-dir", str(tmp_path / "logs")],
-                          capture_output=True, text=True, timeout=400)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    stats = json.loads(stats_path.read_text())
+def test_cli_run_replay_records_poses_and_rerun_file(replay_run):
+    """``mocap-rt run --source replay:WALK --record --rerun save: --stats`` (the session's shared
+    run, conftest.replay_run: at half speed, from an empty kernel cache)."""
+    walk, rec, rrd = replay_run.walk, replay_run.rec, replay_run.rrd
+    assert replay_run.returncode == 0, replay_run.stderr[-3000:]
+    stats = replay_run.stats
     n = Recording(walk).n_frames
     print("stats:", json.dumps({k: stats[k] for k in ("frames_triggered", "poses_published",
                                                     "frames_dropped", "latency_ms")}))

@@ -21,6 +21,8 @@ class UdpSink:
 
     def __init__(self) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # room for the whole run's datagrams if this thread is not scheduled for a while
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.1)
         self.port = self.sock.getsockname()[1]
@@ -37,6 +39,17 @@ class UdpSink:
                 continue
             self.packets.append((time.monotonic(), data))
 
+    def drain(self, at_least: int, quiet_s: float = 0.5, timeout_s: float = 30.0) -> None:
+        """Wait until ``at_least`` datagrams arrived and none for ``quiet_s``."""
+        t_end = time.monotonic() + timeout_s
+        n, t_n = -1, time.monotonic()
+        while time.monotonic() < t_end:
+            if len(self.packets) != n:
+                n, t_n = len(self.packets), time.monotonic()
+            elif n >= at_least and time.monotonic() - t_n >= quiet_s:
+                return
+            time.sleep(0.05)
+
     def close(self) -> None:
         self._stop.set()
         self._thread.join()
@@ -51,7 +64,9 @@ def test_vmc_stream_of_a_replay(tmp_path, tmp_path_factory, data_dir):
                                stream=f"vmc:127.0.0.1:{sink.port}", log_dir=tmp_path / "logs",
                                status_line=False))
         stats = L.run()
-        time.sleep(0.2)
+        # every bundle the streamer sent is on the socket already: wait until this thread has
+        # read them all (its count reaches the streamer's and stays there)
+        sink.drain(stats["stream"].get("sent", 0))
     finally:
         sink.close()
     n_poses = stats["poses_published"]
