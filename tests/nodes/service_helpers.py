@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import socket
+import threading
 import time
 from pathlib import Path
 
@@ -42,6 +44,46 @@ def wait_for(predicate, timeout_s: float, launcher=None, step_s: float = 0.05):
             launcher.supervise_for(step_s)
         else:
             time.sleep(step_s)
+
+
+class UdpSink:
+    """Every datagram arriving on a loopback port, with its arrival time."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # room for the whole run's datagrams if this thread is not scheduled for a while
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.packets: list[tuple[float, bytes]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            self.packets.append((time.monotonic(), data))
+
+    def drain(self, at_least: int, quiet_s: float = 0.5, timeout_s: float = 30.0) -> None:
+        """Wait until ``at_least`` datagrams arrived and none for ``quiet_s``."""
+        t_end = time.monotonic() + timeout_s
+        n, t_n = -1, time.monotonic()
+        while time.monotonic() < t_end:
+            if len(self.packets) != n:
+                n, t_n = len(self.packets), time.monotonic()
+            elif n >= at_least and time.monotonic() - t_n >= quiet_s:
+                return
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.sock.close()
 
 
 class HeadlessChromium:
