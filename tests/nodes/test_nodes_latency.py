@@ -157,7 +157,9 @@ def test_child_priority_reaches_its_autogroup():
     try:
         text = Path(f"/proc/{p.pid}/autogroup").read_text()
         assert text.split()[-1] == "-3", text
-        assert os.getpriority(os.PRIO_PROCESS, p.pid) == -3
+        # the process's own niceness is raised by 3 from the launcher's (``os.nice``: relative;
+        # the test may itself run under ``nice``)
+        assert os.getpriority(os.PRIO_PROCESS, p.pid) == max(-20, os.getpriority(os.PRIO_PROCESS, 0) - 3)
     finally:
         p.kill()
         p.wait()
