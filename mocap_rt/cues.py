@@ -1,8 +1,8 @@
 """What the per-camera perception stage hands to fusion, and what fusion hands back.
 
 Plain dataclasses of numpy arrays, in the cue order of ``mocap_rt.names.CUE_NAMES``.
-``to_dict``/``from_dict`` give msgpack-friendly dicts (arrays stay numpy; the message
-layer in ``nodes/messages.py`` encodes them).
+``to_dict``/``from_dict`` are the one field layout of cues and predictions (arrays stay
+numpy): the service's messages (``nodes/messages.py``) carry exactly these fields.
 """
 
 from __future__ import annotations
@@ -161,14 +161,15 @@ class CameraCues:
                    np.zeros(N_CUES), np.zeros(N_CUES))
 
     def to_dict(self) -> dict:
+        """The fields; the silhouette (key ``sil``) only when there is one."""
         return {"camera": self.camera, "frame": int(self.frame), "xy": self.xy, "cov": self.cov,
-                "area": self.area, "confidence": self.confidence, "bbox": list(self.bbox),
+                "area": self.area, "confidence": self.confidence, "bbox": [int(v) for v in self.bbox],
                 "timings_ms": {str(k): float(v) for k, v in self.timings_ms.items()},
-                "silhouette": None if self.silhouette is None else self.silhouette.to_dict()}
+                **({} if self.silhouette is None else {"sil": self.silhouette.to_dict()})}
 
     @classmethod
     def from_dict(cls, d: dict) -> "CameraCues":
-        sil = d.get("silhouette")
+        sil = d.get("sil")
         return cls(str(d["camera"]), int(d["frame"]), d["xy"], d["cov"], d["area"], d["confidence"],
                    tuple(d["bbox"]), dict(d.get("timings_ms", {})),
                    None if sil is None else CompactSilhouette.from_dict(sil))

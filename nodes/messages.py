@@ -1,9 +1,10 @@
-"""Versioned msgpack messages of the capture service and their Zenoh key expressions.
+"""The service's message schemas (one ``SCHEMA_VERSION``) and their Zenoh key expressions.
 
-Every message travels as a msgpack map ``{"v": SCHEMA_VERSION, "t": <type>, "b": <body>}``.
-Arrays inside a body are ``{"dtype": "<f8", "shape": [..], "data": <bytes>}`` (always
-little-endian, C order). Each message class is a frozen, slotted dataclass with an explicit
-``to_msgpack()`` and ``from_msgpack(payload)``; ``from_msgpack`` raises ``MessageError``.
+Each message class is a frozen, slotted dataclass with ``to_msgpack()`` and
+``from_msgpack(payload)`` (raises ``MessageError``); the wire format (envelope
+``{"v": SCHEMA_VERSION, "t": <type>, "b": <body>}``, array records, field checks) is
+``nodes/codec.py``. The cue and prediction fields are those of ``CameraCues.to_dict`` and
+``CuePrediction.to_dict`` (``mocap_rt/cues.py``), checked here on the way in.
 
 Nodes never call ``from_msgpack`` on the hot path directly: they use a ``Decoder``, which turns
 every bad payload (wrong version, wrong type, oversized, truncated, malformed) into a counted,
@@ -30,40 +31,21 @@ latency is only computed between stamps of one host), ``*_wall_ns`` are ``time.t
 
 from __future__ import annotations
 
-import logging
-import math
-import re
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-import msgpack
 import numpy as np
 
 from mocap_rt.body.skeleton import N_BONE_VALUES
-from mocap_rt.cues import N_CUES, SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette, CuePrediction
+from mocap_rt.cues import N_CUES, SILHOUETTE_MAX_BYTES, CameraCues, CuePrediction
 from mocap_rt.names import JOINT_NAMES
-
-log = logging.getLogger(__name__)
+from nodes.codec import (Decoder, Envelope, MessageError, check_name, decode_array, encode_array,  # noqa: F401
+                         encode_fields, get_bytes, get_float, get_float_map, get_int, get_names, get_str, is_int)
 
 SCHEMA_VERSION = 3          # 2: Pose carries the bone lengths of its skeleton; 3: Cues may carry a silhouette
 KEY_ROOT = "mocap"
-# names that become key-expression chunks: no '/', '*', '$', '?', '#' or spaces
-_NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
-# dtypes an array field may carry (little-endian or byte-order free only)
-_ALLOWED_DTYPES = frozenset({"<f8", "<f4", "<i8", "<i4", "|u1", "|b1", "<u2"})
 N_JOINTS = len(JOINT_NAMES)
 MAX_BVH_CHANNELS = 4096
-
-
-class MessageError(ValueError):
-    """A payload that is not a valid message of the expected type and version."""
-
-
-def check_name(name: str, what: str = "name") -> str:
-    """Return ``name`` if it is usable as one key-expression chunk, else raise ValueError."""
-    if not isinstance(name, str) or not _NAME_RE.match(name):
-        raise ValueError(f"{what} {name!r} must match {_NAME_RE.pattern} (used in Zenoh keys)")
-    return name
 
 
 class Keys:
@@ -99,153 +81,18 @@ class Keys:
     def background(self, camera: str = "*") -> str:
         return f"{self.root}/background/{camera}"
 
-    def all(self) -> str:
-        return f"{self.root}/**"
-
-
-# ---------------------------------------------------------------- field codecs
-
-def encode_array(a: np.ndarray) -> dict:
-    """numpy array -> msgpack-friendly dict, little-endian, C order."""
-    a = np.asarray(a)
-    if a.dtype.byteorder == ">" or (a.dtype.byteorder == "=" and np.little_endian is False):
-        a = a.astype(a.dtype.newbyteorder("<"))
-    a = np.ascontiguousarray(a)
-    return {"dtype": a.dtype.str, "shape": list(a.shape), "data": a.tobytes()}
-
-
-def decode_array(d, name: str, shape: tuple[int | None, ...] | None = None,
-                 dtype: str | None = None) -> np.ndarray:
-    """msgpack dict -> numpy array (a writable copy), checking dtype, shape and byte count.
-
-    shape : expected shape; ``None`` entries match any length.
-    """
-    if not isinstance(d, dict) or set(d) != {"dtype", "shape", "data"}:
-        raise MessageError(f"field {name!r} is not an array record")
-    dt, shp, data = d["dtype"], d["shape"], d["data"]
-    if not isinstance(dt, str) or dt not in _ALLOWED_DTYPES:
-        raise MessageError(f"field {name!r} has unsupported dtype {dt!r}")
-    if dtype is not None and dt != dtype:
-        raise MessageError(f"field {name!r} must have dtype {dtype}, got {dt}")
-    if not isinstance(shp, list) or len(shp) > 6 or not all(_is_int(s) and 0 <= s < 2**31 for s in shp):
-        raise MessageError(f"field {name!r} has a bad shape {shp!r}")
-    if shape is not None and (len(shape) != len(shp)
-                              or any(e is not None and e != s for e, s in zip(shape, shp))):
-        raise MessageError(f"field {name!r} must have shape {shape}, got {tuple(shp)}")
-    if not isinstance(data, bytes):
-        raise MessageError(f"field {name!r} data is not bytes")
-    itemsize = np.dtype(dt).itemsize
-    if len(data) != math.prod(shp) * itemsize:         # exact: Python ints (np.prod: 30 us)
-        raise MessageError(f"field {name!r}: {len(data)} bytes do not fit shape {shp} of {dt}")
-    return np.frombuffer(data, dtype=dt).reshape(shp).copy()
-
-
-def _is_int(x) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _int(b: dict, key: str, lo: int = -(2**63), hi: int = 2**63 - 1) -> int:
-    v = b.get(key)
-    if not _is_int(v) or not lo <= v <= hi:
-        raise MessageError(f"field {key!r} must be an int in [{lo}, {hi}], got {v!r}")
-    return v
-
-
-def _float(b: dict, key: str) -> float:
-    v = b.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise MessageError(f"field {key!r} must be a number, got {type(v).__name__}")
-    return float(v)
-
-
-def _str(b: dict, key: str, name: bool = False) -> str:
-    v = b.get(key)
-    if not isinstance(v, str) or len(v) > 256:
-        raise MessageError(f"field {key!r} must be a short string")
-    if name and not _NAME_RE.match(v):
-        raise MessageError(f"field {key!r} = {v!r} is not a valid name")
-    return v
-
-
-def _names(b: dict, key: str) -> tuple[str, ...]:
-    v = b.get(key)
-    if not isinstance(v, list) or len(v) > 256 or not all(isinstance(s, str) and _NAME_RE.match(s) for s in v):
-        raise MessageError(f"field {key!r} must be a list of names")
-    return tuple(v)
-
-
-def _float_map(b: dict, key: str) -> dict[str, float]:
-    v = b.get(key)
-    if not isinstance(v, dict) or len(v) > 64:
-        raise MessageError(f"field {key!r} must be a small map")
-    out = {}
-    for k, x in v.items():
-        if not isinstance(k, str) or isinstance(x, bool) or not isinstance(x, (int, float)):
-            raise MessageError(f"field {key!r} must map str -> number")
-        out[k] = float(x)
-    return out
-
-
-def _bytes(b: dict, key: str) -> bytes:
-    v = b.get(key)
-    if not isinstance(v, bytes):
-        raise MessageError(f"field {key!r} must be bytes")
-    return v
-
-
-# ---------------------------------------------------------------- envelope
-
-class _Message:
-    """Mixin: envelope encode/decode shared by every message class."""
-
-    __slots__ = ()
-    TYPE: ClassVar[str] = ""
-    MAX_BYTES: ClassVar[int] = 0
-    OPTIONAL_FIELDS: ClassVar[tuple[str, ...]] = ()   # body keys a message may leave out
-
-    def body(self) -> dict:  # pragma: no cover - each class overrides
-        raise NotImplementedError
-
-    @classmethod
-    def from_body(cls, b: dict):  # pragma: no cover - each class overrides
-        raise NotImplementedError
-
-    def to_msgpack(self) -> bytes:
-        payload = msgpack.packb({"v": SCHEMA_VERSION, "t": self.TYPE, "b": self.body()}, use_bin_type=True)
-        if len(payload) > self.MAX_BYTES:
-            raise MessageError(f"{self.TYPE} message of {len(payload)} B exceeds {self.MAX_BYTES} B")
-        return payload
-
-    @classmethod
-    def from_msgpack(cls, payload: bytes):
-        if not isinstance(payload, (bytes, bytearray, memoryview)):
-            raise MessageError(f"payload must be bytes, got {type(payload).__name__}")
-        if len(payload) > cls.MAX_BYTES:
-            raise MessageError(f"oversized {cls.TYPE} payload: {len(payload)} B > {cls.MAX_BYTES} B")
-        try:
-            env = msgpack.unpackb(payload, raw=False, strict_map_key=True, use_list=True)
-        except Exception as exc:  # msgpack raises several types for truncated/garbage input
-            raise MessageError(f"undecodable {cls.TYPE} payload ({type(exc).__name__}: {exc})") from None
-        if not isinstance(env, dict) or set(env) != {"v", "t", "b"}:
-            raise MessageError("payload is not a message envelope")
-        if env["v"] != SCHEMA_VERSION:
-            raise MessageError(f"schema version {env['v']!r} != {SCHEMA_VERSION}")
-        if env["t"] != cls.TYPE:
-            raise MessageError(f"message type {env['t']!r}, expected {cls.TYPE!r}")
-        if not isinstance(env["b"], dict):
-            raise MessageError("message body is not a map")
-        try:
-            return cls.from_body(env["b"])
-        except MessageError:
-            raise
-        except (ValueError, TypeError, KeyError, IndexError, OverflowError) as exc:
-            raise MessageError(f"bad {cls.TYPE} body: {exc}") from None
-
 
 # ---------------------------------------------------------------- messages
 
+class Message(Envelope):
+    """Base of the messages of this schema version."""
+
+    __slots__ = ()
+    VERSION: ClassVar[int] = SCHEMA_VERSION
+
+
 @dataclass(frozen=True, slots=True)
-class Trigger(_Message):
+class Trigger(Message):
     """Sync -> everyone: capture frame ``frame`` now.
 
     period_ns : the nominal frame period (0 when free-running, ``--speed max``).
@@ -265,12 +112,12 @@ class Trigger(_Message):
 
     @classmethod
     def from_body(cls, b: dict) -> "Trigger":
-        return cls(_str(b, "rig", True), _int(b, "frame", 0), _int(b, "t_mono_ns", 0),
-                   _int(b, "t_wall_ns", 0), _int(b, "period_ns", 0))
+        return cls(get_str(b, "rig", True), get_int(b, "frame", 0), get_int(b, "t_mono_ns", 0),
+                   get_int(b, "t_wall_ns", 0), get_int(b, "period_ns", 0))
 
 
 @dataclass(frozen=True, slots=True)
-class Cues(_Message):
+class Cues(Message):
     """Camera worker -> fusion: one camera's cues for one triggered frame.
 
     The cues may carry the camera's compact silhouette (body key ``sil``: cell origin,
@@ -298,54 +145,47 @@ class Cues(_Message):
         return self.cues.frame
 
     def body(self) -> dict:
-        c = self.cues
-        return {"rig": self.rig, "camera": c.camera, "frame": int(c.frame), "xy": encode_array(c.xy),
-                "cov": encode_array(c.cov), "area": encode_array(c.area),
-                "confidence": encode_array(c.confidence), "bbox": [int(v) for v in c.bbox],
-                "timings_ms": {str(k): float(v) for k, v in c.timings_ms.items()},
-                "t_trigger_mono_ns": self.t_trigger_mono_ns, "t_grab_mono_ns": self.t_grab_mono_ns,
-                "processing_ms": float(self.processing_ms),
-                **({} if c.silhouette is None else {"sil": _silhouette_body(c.silhouette)})}
+        fields = encode_fields(self.cues.to_dict())
+        sil = {"sil": fields.pop("sil")} if "sil" in fields else {}
+        return {"rig": self.rig, **fields, "t_trigger_mono_ns": self.t_trigger_mono_ns,
+                "t_grab_mono_ns": self.t_grab_mono_ns, "processing_ms": float(self.processing_ms), **sil}
 
     @classmethod
     def from_body(cls, b: dict) -> "Cues":
         bbox = b.get("bbox")
-        if not isinstance(bbox, list) or len(bbox) != 4 or not all(_is_int(v) for v in bbox):
+        if not isinstance(bbox, list) or len(bbox) != 4 or not all(is_int(v) for v in bbox):
             raise MessageError("field 'bbox' must be 4 ints")
-        cues = CameraCues(_str(b, "camera", True), _int(b, "frame", 0),
-                          decode_array(b.get("xy"), "xy", (N_CUES, 2), "<f8"),
-                          decode_array(b.get("cov"), "cov", (N_CUES, 2, 2), "<f8"),
-                          decode_array(b.get("area"), "area", (N_CUES,), "<f8"),
-                          decode_array(b.get("confidence"), "confidence", (N_CUES,), "<f8"),
-                          tuple(bbox), _float_map(b, "timings_ms"),
-                          _silhouette_from_body(b["sil"]) if "sil" in b else None)
-        return cls(_str(b, "rig", True), cues, _int(b, "t_trigger_mono_ns", 0),
-                   _int(b, "t_grab_mono_ns", 0), _float(b, "processing_ms"))
+        fields = {"camera": get_str(b, "camera", True), "frame": get_int(b, "frame", 0),
+                  "xy": decode_array(b.get("xy"), "xy", (N_CUES, 2), "<f8"),
+                  "cov": decode_array(b.get("cov"), "cov", (N_CUES, 2, 2), "<f8"),
+                  "area": decode_array(b.get("area"), "area", (N_CUES,), "<f8"),
+                  "confidence": decode_array(b.get("confidence"), "confidence", (N_CUES,), "<f8"),
+                  "bbox": bbox, "timings_ms": get_float_map(b, "timings_ms")}
+        if "sil" in b:
+            fields["sil"] = _silhouette_fields(b["sil"])
+        return cls(get_str(b, "rig", True), CameraCues.from_dict(fields), get_int(b, "t_trigger_mono_ns", 0),
+                   get_int(b, "t_grab_mono_ns", 0), get_float(b, "processing_ms"))
 
 
 # largest silhouette cell count per side a Cues message may carry
 MAX_SILHOUETTE_CELLS = 4096
 
 
-def _silhouette_body(sil: CompactSilhouette) -> dict:
-    return {"x0": sil.x0, "y0": sil.y0, "step": sil.step, "w": int(sil.mask.shape[1]),
-            "bits": encode_array(sil.packed())}
-
-
-def _silhouette_from_body(d) -> CompactSilhouette:
-    """The optional compact silhouette of a Cues body; sizes and shape checked."""
+def _silhouette_fields(d) -> dict:
+    """The optional compact silhouette of a Cues body (``CompactSilhouette.to_dict`` fields),
+    sizes and shape checked."""
     if not isinstance(d, dict):
         raise MessageError("field 'sil' must be a map")
-    x0, y0 = _int(d, "x0", -(2**20), 2**20), _int(d, "y0", -(2**20), 2**20)
-    step, w = _int(d, "step", 1, 256), _int(d, "w", 0, MAX_SILHOUETTE_CELLS)
+    w = get_int(d, "w", 0, MAX_SILHOUETTE_CELLS)
     bits = decode_array(d.get("bits"), "sil.bits", (None, (w + 7) // 8), "|u1")
     if bits.shape[0] > MAX_SILHOUETTE_CELLS or bits.nbytes > 2 * SILHOUETTE_MAX_BYTES:
         raise MessageError(f"field 'sil.bits' too large: {bits.shape}")
-    return CompactSilhouette.from_packed(x0, y0, step, w, bits)
+    return {"x0": get_int(d, "x0", -(2**20), 2**20), "y0": get_int(d, "y0", -(2**20), 2**20),
+            "step": get_int(d, "step", 1, 256), "w": w, "bits": bits}
 
 
 @dataclass(frozen=True, slots=True)
-class Prediction(_Message):
+class Prediction(Message):
     """Fusion -> camera worker: where the cues should be in ``prediction.frame`` (seed A.4)."""
 
     TYPE: ClassVar[str] = "prediction"
@@ -354,21 +194,19 @@ class Prediction(_Message):
     prediction: CuePrediction
 
     def body(self) -> dict:
-        p = self.prediction
-        return {"rig": self.rig, "camera": p.camera, "frame": int(p.frame), "xy": encode_array(p.xy),
-                "visible": encode_array(p.visible), "radius_px": encode_array(p.radius_px)}
+        return {"rig": self.rig, **encode_fields(self.prediction.to_dict())}
 
     @classmethod
     def from_body(cls, b: dict) -> "Prediction":
-        p = CuePrediction(_str(b, "camera", True), _int(b, "frame", 0),
-                          decode_array(b.get("xy"), "xy", (N_CUES, 2), "<f8"),
-                          decode_array(b.get("visible"), "visible", (N_CUES,), "|b1"),
-                          decode_array(b.get("radius_px"), "radius_px", (N_CUES,), "<f8"))
-        return cls(_str(b, "rig", True), p)
+        fields = {"camera": get_str(b, "camera", True), "frame": get_int(b, "frame", 0),
+                  "xy": decode_array(b.get("xy"), "xy", (N_CUES, 2), "<f8"),
+                  "visible": decode_array(b.get("visible"), "visible", (N_CUES,), "|b1"),
+                  "radius_px": decode_array(b.get("radius_px"), "radius_px", (N_CUES,), "<f8")}
+        return cls(get_str(b, "rig", True), CuePrediction.from_dict(fields))
 
 
 @dataclass(frozen=True, slots=True)
-class Pose(_Message):
+class Pose(Message):
     """Fusion -> recorder, viewer: the body for one frame.
 
     cues_3d : (6, 3) float64 metres, world (Z up), NaN where not reconstructed.
@@ -412,17 +250,17 @@ class Pose(_Message):
         bvh = decode_array(b.get("bvh_frame"), "bvh_frame", (None,), "<f8")
         if bvh.shape[0] > MAX_BVH_CHANNELS:
             raise MessageError("field 'bvh_frame' is too long")
-        return cls(_str(b, "rig", True), _int(b, "frame", 0), _int(b, "t_trigger_mono_ns", 0),
-                   _int(b, "t_pub_mono_ns", 0),
+        return cls(get_str(b, "rig", True), get_int(b, "frame", 0), get_int(b, "t_trigger_mono_ns", 0),
+                   get_int(b, "t_pub_mono_ns", 0),
                    decode_array(b.get("cues_3d"), "cues_3d", (N_CUES, 3), "<f8"),
                    decode_array(b.get("cue_valid"), "cue_valid", (N_CUES,), "|b1"),
                    decode_array(b.get("joints"), "joints", (N_JOINTS, 3), "<f8"), bvh,
-                   _names(b, "cameras_used"), _names(b, "cameras_missing"),
-                   decode_array(b.get("bones"), "bones", (N_BONE_VALUES,), "<f8"), _float_map(b, "timings_ms"))
+                   get_names(b, "cameras_used"), get_names(b, "cameras_missing"),
+                   decode_array(b.get("bones"), "bones", (N_BONE_VALUES,), "<f8"), get_float_map(b, "timings_ms"))
 
 
 @dataclass(frozen=True, slots=True)
-class Status(_Message):
+class Status(Message):
     """Every node -> launcher, about once a second.
 
     state : "starting" | "ready" | "running" | "stopping".  fps : frames handled per second
@@ -457,17 +295,17 @@ class Status(_Message):
 
     @classmethod
     def from_body(cls, b: dict) -> "Status":
-        state = _str(b, "state")
+        state = get_str(b, "state")
         if state not in cls.STATES:
             raise MessageError(f"unknown state {state!r}")
-        return cls(_str(b, "rig", True), _str(b, "node", True), _str(b, "role", True),
-                   _int(b, "pid", 0), _int(b, "t_mono_ns", 0), state, _float(b, "fps"),
-                   _float(b, "processing_ms"), _int(b, "frames", 0), _int(b, "drops", 0),
-                   _int(b, "decode_drops", 0), _float(b, "cpu_s"), _float_map(b, "extra"))
+        return cls(get_str(b, "rig", True), get_str(b, "node", True), get_str(b, "role", True),
+                   get_int(b, "pid", 0), get_int(b, "t_mono_ns", 0), state, get_float(b, "fps"),
+                   get_float(b, "processing_ms"), get_int(b, "frames", 0), get_int(b, "drops", 0),
+                   get_int(b, "decode_drops", 0), get_float(b, "cpu_s"), get_float_map(b, "extra"))
 
 
 @dataclass(frozen=True, slots=True)
-class Preview(_Message):
+class Preview(Message):
     """Camera worker -> viewer: a JPEG of the image a cue message came from."""
 
     TYPE: ClassVar[str] = "preview"
@@ -482,11 +320,11 @@ class Preview(_Message):
 
     @classmethod
     def from_body(cls, b: dict) -> "Preview":
-        return cls(_str(b, "rig", True), _str(b, "camera", True), _int(b, "frame", 0), _bytes(b, "jpeg"))
+        return cls(get_str(b, "rig", True), get_str(b, "camera", True), get_int(b, "frame", 0), get_bytes(b, "jpeg"))
 
 
 @dataclass(frozen=True, slots=True)
-class Frame(_Message):
+class Frame(Message):
     """Live camera worker -> recorder: the raw image of one triggered frame.
 
     image : (H, W, 3) uint8 BGR.  t_grab_wall_ns : when the grabber received it.
@@ -506,12 +344,12 @@ class Frame(_Message):
 
     @classmethod
     def from_body(cls, b: dict) -> "Frame":
-        return cls(_str(b, "rig", True), _str(b, "camera", True), _int(b, "frame", 0),
-                   _int(b, "t_grab_wall_ns", 0), decode_array(b.get("image"), "image", (None, None, 3), "|u1"))
+        return cls(get_str(b, "rig", True), get_str(b, "camera", True), get_int(b, "frame", 0),
+                   get_int(b, "t_grab_wall_ns", 0), decode_array(b.get("image"), "image", (None, None, 3), "|u1"))
 
 
 @dataclass(frozen=True, slots=True)
-class Background(_Message):
+class Background(Message):
     """Live camera worker -> recorder: the empty-scene frames its perceiver uses.
 
     images : (B, H, W, 3) uint8 BGR.
@@ -528,44 +366,8 @@ class Background(_Message):
 
     @classmethod
     def from_body(cls, b: dict) -> "Background":
-        return cls(_str(b, "rig", True), _str(b, "camera", True),
+        return cls(get_str(b, "rig", True), get_str(b, "camera", True),
                    decode_array(b.get("images"), "images", (None, None, None, 3), "|u1"))
 
 
 MESSAGE_TYPES: tuple[type, ...] = (Trigger, Cues, Prediction, Pose, Status, Preview, Frame, Background)
-
-
-# ---------------------------------------------------------------- decoder with drop accounting
-
-class Decoder:
-    """Decode payloads of one node; every rejected payload is a counted, logged drop.
-
-    ``decode(payload, cls)`` accepts bytes or a ``zenoh.ZBytes`` (anything with
-    ``to_bytes()``) and returns a message or ``None``. ``drops`` counts by reason
-    (the message type that was expected); ``total_drops`` sums them.
-    """
-
-    LOG_FIRST = 5          # log every one of the first drops ...
-    LOG_EVERY = 100        # ... then one in this many
-
-    def __init__(self, node: str = "") -> None:
-        self.node = node
-        self.drops: dict[str, int] = {}
-
-    @property
-    def total_drops(self) -> int:
-        return sum(self.drops.values())
-
-    def decode(self, payload, cls: type):
-        try:
-            if hasattr(payload, "to_bytes"):
-                payload = payload.to_bytes()
-            return cls.from_msgpack(payload)
-        except Exception as exc:  # never let a bad payload escape into a node's loop
-            n = self.drops.get(cls.TYPE, 0) + 1
-            self.drops[cls.TYPE] = n
-            total = self.total_drops
-            if total <= self.LOG_FIRST or total % self.LOG_EVERY == 0:
-                log.warning("%s: dropped %s message (%d dropped so far): %s",
-                            self.node or "node", cls.TYPE, total, exc)
-            return None
