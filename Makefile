@@ -33,13 +33,13 @@ system-deps:
 # without them the rest of the project works and gst: sources say what to install.
 gst-bindings: $(STAMP)
 	@test -f $(GST_STAMP) || { if pkg-config --exists gobject-introspection-1.0 cairo 2>/dev/null; then \
-	  $(UV) -e '.[gst]' && touch $(GST_STAMP); \
+	  $(UV) -e '.[dev,service,gst]' && touch $(GST_STAMP); \
 	  else echo "note: GStreamer development files missing (make system-deps): gst: sources unavailable"; fi; }
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet uv
-	$(UV) -e '.[dev]'
+	$(UV) -e '.[dev,service]'
 	rm -f $(GST_STAMP)
 	touch $(STAMP)
 

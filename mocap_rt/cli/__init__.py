@@ -2,7 +2,9 @@
 
 Each subcommand module defines ``register(subparsers)`` which adds its parser and sets
 ``func`` (called with the parsed args; returns an exit code). Heavy imports stay inside
-the functions so that ``mocap-rt --help`` is quick.
+the functions so that ``mocap-rt --help`` is quick. The capture service's subcommands
+(``run``, ``node``) come from ``nodes.cli`` when the ``service`` extra is installed; without
+it they say what to install.
 """
 
 from __future__ import annotations
@@ -22,8 +24,33 @@ SUBCOMMANDS = (
     "mocap_rt.cli.process",
     "mocap_rt.cli.pose_from_annotations",
     "mocap_rt.cli.joint_centres",
-    "nodes.cli",
 )
+SERVICE_CLI = "nodes.cli"
+SERVICE_SUBCOMMANDS = ("run", "node")
+# what the service imports beyond the library (pyproject.toml, extra "service")
+SERVICE_MODULES = {"zenoh": "eclipse-zenoh", "msgpack": "msgpack", "rerun": "rerun-sdk", "psutil": "psutil"}
+SERVICE_INSTALL = "pip install 'mocap-rt[service]'"
+
+
+def service_unavailable() -> str | None:
+    """Why the capture service cannot run here (None: it can): a distribution of the
+    ``service`` extra, or the ``nodes`` package, cannot be imported."""
+    missing = [dist for mod, dist in SERVICE_MODULES.items() if importlib.util.find_spec(mod) is None]
+    if not missing and importlib.util.find_spec(SERVICE_CLI) is None:
+        missing = ["the nodes package"]
+    if not missing:
+        return None
+    return f"the capture service is not installed (missing: {', '.join(missing)}); install it with: {SERVICE_INSTALL}"
+
+
+def _register_service(sub) -> None:
+    """``run`` and ``node`` from ``nodes.cli``; without the service, listed stand-ins (``main``
+    answers them with what to install)."""
+    if service_unavailable() is None:
+        importlib.import_module(SERVICE_CLI).register(sub)
+        return
+    for name in SERVICE_SUBCOMMANDS:
+        sub.add_parser(name, help=f"the capture service (needs {SERVICE_INSTALL})", add_help=False)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,9 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in SUBCOMMANDS:
-        if importlib.util.find_spec(name) is None:
-            continue
         importlib.import_module(name).register(sub)
+    _register_service(sub)
     return parser
 
 
@@ -48,8 +74,12 @@ USER_ERRORS = (ValueError, OSError)
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand. A bad input ends it with one line ``mocap-rt COMMAND: error: ...`` on
     stderr and exit code 2 (as argparse does for a bad flag); ``-v`` adds the traceback."""
-    parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    if command in SERVICE_SUBCOMMANDS and (why := service_unavailable()) is not None:
+        print(f"mocap-rt {command}: error: {why}", file=sys.stderr)
+        return 2
+    parser = build_parser()
     for a in argv:
         # Python 3.11's argparse turns "--opt=--" into an empty list instead of an error
         if a.startswith("--") and a.endswith("=--"):
