@@ -128,3 +128,77 @@ def test_closed_loop_backwards_walk_is_not_mirrored(backwards_walk, tmp_path):
     assert np.nansum(mir[ACQUIRE_FRAMES:]) == 0, f"mirrored frames: {np.flatnonzero(mir == 1)}"
     assert np.nanmax(herr[ACQUIRE_FRAMES:]) < 60.0
     assert out.accuracy.mpjpe_mm < 100.0
+
+
+def _frames_to_switch(state: IdentityState, costs: np.ndarray, cfg: IdentityConfig, limit: int = 200) -> tuple[int, int]:
+    """Feed the same ``costs`` until ``decide`` switches: (frames taken, alternative)."""
+    for n in range(1, limit + 1):
+        k = decide(state, costs, cfg)
+        if k >= 0:
+            return n, k
+    return -1, -1
+
+
+def test_a_cold_start_on_wrong_labels_leaves_no_debt():
+    """The first frames of a track are fitted on labels nobody checked yet: frames where the
+    mirror fits far worse (perception's first guess, the pan not yet found) must not delay the
+    mirror once it fits better. With the evidence floored at 0 while acquiring, the switch comes
+    as fast as from a fresh state; without the acquisition (the plain leaky sum from the first
+    frame) the debt is paid back first."""
+    cfg = IdentityConfig()
+    mirror = ALTERNATIVES.index("mirror")
+    bad_start = np.array([50.0, 300.0, 60.0, 200.0])         # the mirror 150 units worse
+    mirrored = np.array([170.0, 310.0, 180.0, 155.0])        # then 15 units better every frame
+    n_fresh, k = _frames_to_switch(IdentityState(), mirrored, cfg)
+    assert k == mirror
+    # gains above gain_cap count gain_cap: g (1 - d^n) / (1 - d) > need
+    need, g, d = cfg.switch_evidence * cfg.acquire_factor, min(15.0, cfg.gain_cap), cfg.decay
+    n = np.arange(1, 50)
+    assert n_fresh == n[np.argmax(g * (1 - d ** n) / (1 - d) > need)]
+    state = IdentityState()
+    for _ in range(3):
+        assert decide(state, bad_start, cfg) == -1
+    assert _frames_to_switch(state, mirrored, cfg) == (n_fresh, mirror)
+    leaky = IdentityConfig(acquire_frames=0, acquire_factor=1.0)
+    state = IdentityState()
+    for _ in range(3):
+        decide(state, bad_start, leaky)
+    assert _frames_to_switch(state, mirrored, leaky)[0] > n_fresh + 10
+
+
+def test_the_mirror_must_earn_both_pairs():
+    """Hands wrong, feet ambiguous (standing, feet together): the hands swap and the mirror fit
+    alike, so the feet keep their measured labels (hands alternative); a body wrong in both
+    pairs (the mirror clearly cheaper than either single swap) takes the mirror."""
+    cfg = IdentityConfig()
+    hands, mirror = ALTERNATIVES.index("hands"), ALTERNATIVES.index("mirror")
+    # the first frames of a track (one frame alone never switches): costs (current, hands, feet, mirror)
+    for costs, want in (([53.7, 11.4, 56.5, 11.3], hands), ([53.7, 30.0, 40.0, 11.3], mirror)):
+        state = IdentityState()
+        assert decide(state, np.array(costs), cfg) == -1
+        assert decide(state, np.array(costs), cfg) == want
+    # two first frames measured on the bench (closed loop): feet crossing, only the hands wrong
+    # (the mirror ahead of the hands swap by 0.1, then 3.3); walking backwards, both pairs
+    # wrong (ahead by 1.8, then 4.7: large gains scaled to gain_cap alike would hide it)
+    for frames, want in (([[53.7, 11.4, 56.5, 11.3], [31.0, 10.5, 25.1, 7.2]], hands),
+                         ([[64.9, 28.1, 59.0, 26.3], [48.9, 21.2, 59.4, 16.5]], mirror)):
+        state = IdentityState()
+        assert [decide(state, np.array(c), cfg) for c in frames] == [-1, want]
+    # the mirror ahead by less than pair_margin while the hands swap is not yet sure: wait
+    cfg2 = IdentityConfig(switch_evidence=100.0, acquire_factor=1.0, decay=1.0)
+    state = IdentityState()
+    state.evidence[:] = state.raw[:] = [97.0, 0.0, 97.0]
+    assert decide(state, np.array([10.0, 8.0, 10.0, 4.0]), cfg2) == -1      # hands 97, mirror 101: wait
+    assert decide(state, np.array([10.0, 6.0, 10.0, 6.0]), cfg2) == hands   # hands 99 + 2 > 100
+
+
+def test_one_frame_never_switches():
+    """A single frame where an alternative fits far better (a kick caught mid-air, a bad blob)
+    adds at most gain_cap, also at a cold start (where the threshold is lowest)."""
+    cfg = IdentityConfig()
+    for frames in (0, cfg.acquire_frames):
+        state = IdentityState()
+        state.frames = frames
+        for n in range(300):
+            spike = 1000.0 if n % 10 == 0 else -5.0
+            assert decide(state, np.array([20.0, 20.0 - spike, 25.0, 20.0 - spike]), cfg) == -1
