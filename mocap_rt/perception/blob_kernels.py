@@ -130,9 +130,11 @@ def ellipse_frame(cov):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True)
-def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_px, win_half_px, mirror_iters,
-                   contour, sites, k_site):  # pragma: no cover
+def deform_ellipse(skin, sil, mean, cov, kp, contour, sites, k_site):  # pragma: no cover
     """Deformable-ellipse boundary (A.2, eq. 3-4) and the centroid of the region it encloses.
+    Settings from kp, a (1,) ``REFINE_PARAMS`` record: ``ellipse_scale`` (scale below),
+    ``n_contour_pts`` (n_pts), ``search_frac``, ``search_min_px``, ``window_half_px``
+    (win_half_px), ``mirror_iters``.
 
     The initial ellipse is ``{mean + scale * Sigma^(1/2) u, |u| = 1}`` (scale 2 = the edge of a
     uniform ellipse). At each of ``n_pts`` perimeter points the boundary offset ``d`` along the
@@ -156,6 +158,13 @@ def deform_ellipse(skin, sil, mean, cov, scale, n_pts, search_frac, search_min_p
     contour (n_pts, 2) float64 receives the (completed) boundary. Returns (cx, cy, area_px2),
     the centroid and area of the polygon (the region inside the deformed contour).
     """
+    q = kp[0]
+    scale = q.ellipse_scale
+    n_pts = q.n_contour_pts
+    search_frac = q.search_frac
+    search_min_px = q.search_min_px
+    win_half_px = q.window_half_px
+    mirror_iters = q.mirror_iters
     sd1, sd2, c, s = ellipse_frame(cov)
     contact = np.zeros(n_pts, np.bool_)
     mx = mean[0]
@@ -292,12 +301,6 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp
     """
     q = kp[0]
     min_area = q.min_area_px
-    scale = q.ellipse_scale
-    n_pts = q.n_contour_pts
-    search_frac = q.search_frac
-    search_min_px = q.search_min_px
-    win_half_px = q.window_half_px
-    mirror_iters = q.mirror_iters
     max_shift_frac = q.max_refine_shift_frac
     exclusive = q.exclusive_pixels
     K = centers.shape[0]
@@ -375,8 +378,7 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp
                     if math.hypot(sites[j, 0] - mx, sites[j, 1] - my) < 2.0 * (reach + rj):
                         n_near += 1
             own = sites if n_near > 0 else sites[k:k + 1]
-            cx, cy, a = deform_ellipse(skin, sil, mean, c2, scale, n_pts, search_frac, search_min_px, win_half_px,
-                                       mirror_iters, contours[k], own, k if n_near > 0 else 0)
+            cx, cy, a = deform_ellipse(skin, sil, mean, c2, kp, contours[k], own, k if n_near > 0 else 0)
             r_blob = math.sqrt(n / math.pi)
             if a > 0 and math.hypot(cx - mx, cy - my) <= max_shift_frac * r_blob + 0.5:
                 xy[k, 0] = cx

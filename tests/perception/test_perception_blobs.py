@@ -8,12 +8,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mocap_rt.perception.blob_kernels import deform_ellipse, label_moments
+from mocap_rt.perception.blob_kernels import REFINE_PARAMS, deform_ellipse, label_moments, params_record
 from mocap_rt.perception.region_kernels import acquire_candidates, region_stats
 from mocap_rt.perception.blobs import (SNAP_MAX_REGIONS, SNAP_NEAR_GATES, SNAP_WINDOW_GATES, BlobParams,
                                        BlobTracker)
 
 _NO_SITES = np.full((1, 2), np.nan)
+
+
+def _kp(n_pts: int, search_frac: float, mirror_iters: int) -> np.ndarray:
+    """``deform_ellipse``'s settings: scale 2, +-3 px search at least, window half length 2 px."""
+    return params_record(REFINE_PARAMS, BlobParams(), ellipse_scale=2.0, n_contour_pts=n_pts, search_frac=search_frac,
+                         search_min_px=3.0, window_half_px=2, mirror_iters=mirror_iters)
 
 
 def _ellipse_map(shape, centre, axes, angle):
@@ -60,7 +66,7 @@ def test_deformable_ellipse_recovers_region_from_a_wrong_initial_ellipse(centre,
     r = 0.5 * np.mean(axes) * 1.3
     cov = np.array([[r * r, 0.2 * r * r], [0.2 * r * r, r * r]])
     contour = np.zeros((24, 2))
-    cx, cy, area = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 24, 0.5, 3.0, 2, 0, contour, _NO_SITES, 0)
+    cx, cy, area = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, _kp(24, 0.5, 0), contour, _NO_SITES, 0)
     assert np.hypot(cx - pix_centroid[0], cy - pix_centroid[1]) < 0.35
     assert area == pytest.approx(skin.sum(), rel=0.08)     # the drawn (pixel) region
     assert area == pytest.approx(true_area, rel=0.15)
@@ -153,15 +159,15 @@ def test_occlusion_completion_moves_a_partly_hidden_blob_towards_its_true_centre
     mean = np.array([xs.mean(), ys.mean()])
     cov = np.cov(np.stack([xs, ys]).astype(float))
     contour = np.zeros((32, 2))
-    plain = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour, _NO_SITES, 0)
-    completed = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.5, 3.0, 2, 20, contour, _NO_SITES, 0)
+    plain = deform_ellipse(skin, sil, mean, cov, _kp(32, 0.5, 0), contour, _NO_SITES, 0)
+    completed = deform_ellipse(skin, sil, mean, cov, _kp(32, 0.5, 20), contour, _NO_SITES, 0)
     err_plain = np.hypot(plain[0] - centre[0], plain[1] - centre[1])
     err_completed = np.hypot(completed[0] - centre[0], completed[1] - centre[1])
     assert err_plain > 2.0                      # the visible part's centre is shifted right
     assert err_completed < 0.5 * err_plain
     assert abs(completed[1] - centre[1]) < 0.3  # and not moved across the axis
     # without a silhouette around it (no contact) completion changes nothing
-    again = deform_ellipse(skin, (skin > 0).astype(np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 20, contour,
+    again = deform_ellipse(skin, (skin > 0).astype(np.uint8), mean, cov, _kp(32, 0.5, 20), contour,
                            _NO_SITES, 0)
     assert again[0] == pytest.approx(plain[0], abs=1e-9)
 
@@ -176,9 +182,9 @@ def test_touching_blobs_of_one_colour_do_not_merge():
     mean = np.array([46.0, 40.5])
     cov = np.array([[64.0, 0.0], [0.0, 16.0]])
     ys, xs = np.nonzero(a)
-    cx, cy, _ = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour, sites, 0)
+    cx, cy, _ = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, _kp(32, 0.5, 0), contour, sites, 0)
     assert np.hypot(cx - xs.mean(), cy - ys.mean()) < 0.6
-    merged = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, 2.0, 32, 0.5, 3.0, 2, 0, contour, _NO_SITES, 0)
+    merged = deform_ellipse(skin, np.zeros((1, 1), np.uint8), mean, cov, _kp(32, 0.5, 0), contour, _NO_SITES, 0)
     assert merged[0] > cx + 0.5            # without the assignment the search leaks into b
 
 
@@ -254,8 +260,8 @@ def test_exclusive_boundary_search_equals_search_on_the_blobs_own_pixels(seed):
     cov = np.diag(rng.uniform(4, 30, 2))
     sil = (rng.random((h, w)) < 0.5).astype(np.uint8)
     got_contour, ref_contour = np.zeros((32, 2)), np.zeros((32, 2))
-    got = deform_ellipse(skin, sil, mean, cov, 2.0, 32, 0.4, 3.0, 2, 20, got_contour, sites, k)
-    ref = deform_ellipse(_own_map(skin, sites, k), sil, mean, cov, 2.0, 32, 0.4, 3.0, 2, 20, ref_contour, _NO_SITES, 0)
+    got = deform_ellipse(skin, sil, mean, cov, _kp(32, 0.4, 20), got_contour, sites, k)
+    ref = deform_ellipse(_own_map(skin, sites, k), sil, mean, cov, _kp(32, 0.4, 20), ref_contour, _NO_SITES, 0)
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(got_contour, ref_contour, rtol=1e-12, atol=1e-9)
 
