@@ -76,11 +76,12 @@ class JacobianParams(NamedTuple):
 def subtree_masks(model: BodyModel, effectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(J, J) bool ``below[j, c]`` (c in j's subtree, j included) and (J, E) effector mask."""
     below = np.zeros((N_JOINTS, N_JOINTS), dtype=np.bool_)
+    parents = model.parents.tolist()
     for c in range(N_JOINTS):
         j = c
         while j >= 0:
             below[j, c] = True
-            j = model.parents[j]
+            j = parents[j]
     return below, below[:, effectors]
 
 
@@ -95,8 +96,6 @@ def chain_weights(model: BodyModel, effectors: np.ndarray, active: np.ndarray,
     """
     _, eff_below = subtree_masks(model, effectors)
     out = np.ascontiguousarray(eff_below, dtype=np.float64)
-    if redundant_weight == 1.0:
-        return out
     n_dof = active.sum(axis=1).tolist()
     parents = model.parents.tolist()
     for e, je in enumerate(np.asarray(effectors).tolist()):
@@ -161,9 +160,10 @@ def build_problem(model: BodyModel, root_pos: np.ndarray, angles0: np.ndarray, e
     ref = angles.copy() if reference is None else np.ascontiguousarray(reference, dtype=np.float64)
     active, lo, hi = allowed_intervals(model, ref, use_limits, angle_tolerance_deg, solve_root)
     angles = np.where(active, np.clip(angles, lo, hi), angles)
-    below, _ = subtree_masks(model, effectors)
+    below, eff_below = subtree_masks(model, effectors)
+    eff_weight = (np.ascontiguousarray(eff_below, dtype=np.float64) if redundant_chain_weight == 1.0
+                  else chain_weights(model, effectors, active, redundant_chain_weight))
     problem = IkProblem(model.parents, model.offsets, model.rest_local,
                         np.ascontiguousarray(root_pos, dtype=np.float64).reshape(3), effectors, gp, gr, wpv, wrv,
-                        active, lo, hi, below, chain_weights(model, effectors, active, redundant_chain_weight),
-                        np.ascontiguousarray(ref.reshape(N_JOINTS, 3)))
+                        active, lo, hi, below, eff_weight, np.ascontiguousarray(ref.reshape(N_JOINTS, 3)))
     return problem, angles
