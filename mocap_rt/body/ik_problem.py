@@ -145,9 +145,9 @@ def _goal_arrays(effectors, goal_pos, goal_rot, w_pos, w_rot):
 
 
 def build_problem(model: BodyModel, root_pos: np.ndarray, angles0: np.ndarray, effectors: np.ndarray,
-               goal_pos: np.ndarray, goal_rot: np.ndarray | None, w_pos: np.ndarray | None,
-               w_rot: np.ndarray | None, reference: np.ndarray | None, solve_root: bool, use_limits: bool,
-               angle_tolerance_deg: float, redundant_chain_weight: float = 1.0) -> tuple[IkProblem, np.ndarray]:
+                  goal_pos: np.ndarray, goal_rot: np.ndarray | None, w_pos: np.ndarray | None,
+                  w_rot: np.ndarray | None, reference: np.ndarray | None, solve_root: bool, use_limits: bool,
+                  angle_tolerance_deg: float, redundant_chain_weight: float = 1.0) -> tuple[IkProblem, np.ndarray]:
     """The kernels' ``IkProblem`` and the start angles (J, 3) radians, clipped to the allowed
     intervals (a new array the kernels update in place). Arguments as ``ccd.solve_ccd``;
     ``redundant_chain_weight`` as ``chain_weights`` (1: every effector below a joint counts fully)."""
