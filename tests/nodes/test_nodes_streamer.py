@@ -14,15 +14,19 @@ def test_vmc_stream_of_a_replay(replay_run):
     """The session's shared run (conftest.replay_run) streams to a loopback UDP sink."""
     assert replay_run.returncode == 0, replay_run.stderr[-3000:]
     stats, sink = replay_run.stats, replay_run.sink
-    n_poses = stats["poses_published"]
+    poses = np.load(replay_run.rec / "poses.npz")
+    # the poses fusion published, as counted by the launcher's monitor and by the recorder: on a
+    # loaded host either may see a pose long before its trigger and drop it ("future"), so the
+    # larger count is the lower bound; one pose per triggered frame is the upper one
+    n_poses = max(stats["poses_published"], len(poses["frames"]))
     bundles = [bones_of(data) for _, data in sink.packets]
-    print(f"VMC: {len(bundles)} bundles for {n_poses} poses; streamer status {stats.get('stream')}")
-    assert n_poses > 0 and 0.98 * n_poses <= len(bundles) <= n_poses
+    print(f"VMC: {len(bundles)} bundles for {stats['poses_published']} poses seen by the monitor, "
+          f"{len(poses['frames'])} recorded; streamer status {stats.get('stream')}")
+    assert n_poses > 0 and 0.98 * n_poses <= len(bundles) <= stats["frames_triggered"]
     assert stats["nodes"]["streamer"]["drops"] == 0 and stats["nodes"]["streamer"]["decode_drops"] == 0
 
     # every bundle is one recorded pose, in order: root = its pelvis, and a receiver's forward
     # kinematics of the bone-local rotations puts every joint where the service had it
-    poses = np.load(replay_run.rec / "poses.npz")
     pelvis_u = unity(poses["joints"][:, JOINT_NAMES.index("pelvis")])
     # on the one frame where fusion calibrates the subject's lengths, ``Pose.joints`` are still
     # solved with the old lengths while ``bvh_frame`` and ``bones`` (what the stream converts)
