@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import psutil
 import pytest
 from service_helpers import small_recording, wait_for
@@ -132,4 +133,8 @@ def test_demo_path_from_an_empty_kernel_cache(replay_run):
     print(f"cold start: {stamp['compiled']} kernels compiled in {stamp['seconds']} s; "
           f"{stats['poses_published']}/{stats['frames_triggered']} poses, latency {stats['latency_ms']}")
     assert stats["frames_triggered"] > 0
-    assert stats["poses_published"] >= MIN_POSE_FRACTION * stats["frames_triggered"], stats
+    # the poses counted by the launcher's monitor or by the recorder (on a loaded host either may
+    # drop a pose that arrives before its trigger as "future": the larger count)
+    with np.load(replay_run.rec / "poses.npz") as z:
+        n_posed = max(stats["poses_published"], len(z["frames"]))
+    assert n_posed >= MIN_POSE_FRACTION * stats["frames_triggered"], stats

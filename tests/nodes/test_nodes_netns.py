@@ -206,7 +206,9 @@ def test_deploy_tls_and_access_control_in_network_namespaces(tmp_path):
                 "cam1": ["mocap/r/cues/cam_1", "mocap/r/status/worker-cam_1", "mocap/r/cues/cam_2", "mocap/r/pose",
                          "mocap/r/trigger"],
                 "rogue": ["mocap/r/cues/cam_1", "mocap/r/pose"], "nocert": ["mocap/r/cues/cam_1"]}
-        timing = {"fusion": ("30", "6"), "cam1": ("30", "3"), "rogue": ("8", "2"), "nocert": ("8", "2")}
+        # fusion and cam1 put for the same 6 s once linked (each may start later than the other
+        # on a loaded machine: equal windows overlap most); no wall time added, fusion's 6 s bound it
+        timing = {"fusion": ("30", "6"), "cam1": ("30", "6"), "rogue": ("8", "2"), "nocert": ("8", "2")}
         for role, keys in puts.items():
             wait, secs = timing[role]
             cmd = ["ip", "netns", "exec", ns[role], sys.executable, str(Path(__file__).with_name("netns_tls_peer.py")),
