@@ -1,11 +1,12 @@
-"""What ``mocap-rt run`` was asked to do (``RunConfig``), one supervised node (``NodeProc``) and
-what the source says about the run (frame rate, replay length)."""
+"""What ``mocap-rt run`` was asked to do (``RunConfig``) and one supervised node process (``NodeProc``)."""
 
 from __future__ import annotations
 
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from mocap_rt.fusion.gather import DEFAULT_DEADLINE_FRAC
 
 
 @dataclass(frozen=True)
@@ -20,7 +21,7 @@ class RunConfig:
     record: Path | None = None
     stats: Path | None = None
     rig_name: str | None = None
-    deadline_frac: float = 0.8
+    deadline_frac: float = DEFAULT_DEADLINE_FRAC
     bones: Path | None = None          # the subject's bone lengths TOML (default: estimated live)
     preview_every: int | None = None
     restart: bool = True
@@ -54,23 +55,3 @@ class NodeProc:
     @property
     def cpu_s(self) -> float:
         return self.cpu_done_s + self.cpu_last_s
-
-
-def source_fps(kind: str, value: str, rig) -> float:
-    """The trigger base rate: a recording's fps (replay/fake), else the rig's (``rig_fps``)."""
-    if kind in ("replay", "fake"):
-        from mocap_rt.io.recording import Recording
-
-        return float(Recording(value).fps)
-    from nodes.runtime import rig_fps
-
-    return rig_fps(rig)
-
-
-def replay_frames(kind: str, value: str) -> int | None:
-    """Frames of one pass of a replay (None for other sources)."""
-    if kind != "replay":
-        return None
-    from mocap_rt.io.recording import Recording
-
-    return int(Recording(value).n_frames)

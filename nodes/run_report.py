@@ -51,7 +51,7 @@ def run_stats(launcher) -> dict:
     for name, n in launcher.nodes.items():
         st = table.get(name, {})
         nodes[name] = {"role": n.role, "cpu_s": round(n.cpu_s, 3),
-                       "cpu_s_running": round(n.cpu_s - launcher._cpu_at_start.get(name, 0.0), 3),
+                       "cpu_s_running": round(n.cpu_s - launcher.cpu_at_start.get(name, 0.0), 3),
                        "restarts": n.restarts,
                        "drops": st.get("drops", 0), "decode_drops": st.get("decode_drops", 0),
                        "fps": st.get("fps", 0.0), "processing_ms": st.get("processing_ms", 0.0),
