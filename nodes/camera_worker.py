@@ -26,11 +26,13 @@ import os
 import sys
 import threading
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
 from nodes.frame_window import FrameWindow
 from nodes.messages import Background, Cues, Frame, Keys, Prediction, Preview, Trigger
-from nodes.runtime import IdleGC, NodeRuntime, ThreadPriority, base_parser, load_rig, node_session, setup_logging
-from nodes.transport import direct_callback
+from nodes.node import NodeSettings, parse_settings, rig_fps, run_node, settings_parser, setup_logging
+from nodes.runtime import IdleGC, NodeRuntime, ThreadPriority
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +40,32 @@ PREVIEW_JPEG_QUALITY = 70
 TRIGGER_WAIT_S = 0.2           # wake up this often to send status while idle
 PREDICTIONS_KEPT = 8           # predictions for the coming frames kept by frame id
 DEFER_FRACTION = 0.5           # deferred work waits for fusion's answer at most this part of a period
+
+
+@dataclass(frozen=True)
+class WorkerSettings(NodeSettings):
+    """camera : the rig camera; source : replay:REC_DIR | v4l2:/dev/videoN | fake:REC_DIR |
+    gst:PIPELINE; backgrounds_from : a recording whose stored backgrounds a gst: source uses;
+    fps : a live device's frame rate (None: the rig's); perception_config : perception TOML
+    (None: built-in); preview_every : a JPEG every N frames (0 = never); publish_frames :
+    raw frames + backgrounds for the recorder; cv_threads : OpenCV threads; standby : the
+    hot spare (module doc). ``node`` defaults to ``worker-<camera>``."""
+
+    camera: str = ""
+    source: str = ""
+    backgrounds_from: Path | None = None
+    fps: float | None = None
+    perception_config: Path | None = None
+    preview_every: int = 0
+    publish_frames: bool = False
+    cv_threads: int = 1
+    standby: bool = False
+
+    def __post_init__(self) -> None:
+        NodeSettings.__post_init__(self)
+        for name in ("backgrounds_from", "perception_config"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, Path(getattr(self, name)))
 
 
 class TriggerSlot:
@@ -108,23 +136,26 @@ def warm_up(camera, source, backgrounds, config_path=None) -> None:
     warm.process(source.grab(0).image if not source.live else backgrounds[0], 0, None)
 
 
-def standby(parser, args):
-    """The hot spare (module doc): warm up on ``args``' camera, wait for the assignment on
-    stdin, return its parsed flags (None at end of input: the launcher stopped)."""
+def standby(parser, s: WorkerSettings) -> WorkerSettings | None:
+    """The hot spare (module doc): warm up on ``s``' camera, wait for the assignment on
+    stdin, return its settings (None at end of input: the launcher stopped)."""
     import numpy as np
 
+    from mocap_rt.geometry.rig import read_rig
     from nodes.sources import open_source
 
-    camera = load_rig(args)[args.camera]
-    source = open_source(args.source, camera, args.fps) if args.source.startswith("replay:") else None
+    rig = read_rig(s.rig)
+    camera = rig[s.camera]
+    fps = s.fps or rig_fps(rig)
+    source = open_source(s.source, camera, fps) if s.source.startswith("replay:") else None
     if source is not None:
-        warm_up(camera, source, source.backgrounds(), args.perception_config)
+        warm_up(camera, source, source.backgrounds(), s.perception_config)
         source.close()
     else:
         w, h = camera.size
         noise = np.random.default_rng(0).integers(0, 8, (3, h, w, 3), dtype=np.uint8)
         backgrounds = noise + np.array([90, 100, 110], np.uint8)
-        make_perceiver(camera, backgrounds, args.perception_config).process(backgrounds[0], 0, None)
+        make_perceiver(camera, backgrounds, s.perception_config).process(backgrounds[0], 0, None)
     log.info("standby: warm, waiting for a camera to take over")
     line = sys.stdin.readline()
     if not line.strip():
@@ -135,7 +166,7 @@ def standby(parser, args):
         os.dup2(fd, 1)
         os.dup2(fd, 2)
         os.close(fd)
-    new = parser.parse_args(job["argv"])
+    new = parse_settings(parser, WorkerSettings, job["argv"])
     log.info("standby: taking over as %s", new.node or new.camera)
     return new
 
@@ -164,8 +195,8 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
     cues_pub = session.declare_publisher(keys.cues(name), express=True)
     preview_pub = session.declare_publisher(keys.preview(name)) if preview_every > 0 else None
     frame_pub = session.declare_publisher(keys.frame(name)) if publish_frames else None
-    subs = [session.declare_subscriber(keys.trigger, direct_callback(on_trigger)),
-            session.declare_subscriber(keys.prediction(name), direct_callback(on_prediction))]
+    rt.subscribe(keys.trigger, on_trigger, direct=True)
+    rt.subscribe(keys.prediction(name), on_prediction, direct=True)
     rt.publish_status("running", force=True)
     gcs = IdleGC()
     gcs.start()
@@ -235,69 +266,73 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             rt.publish_status()
     finally:
         gcs.stop()
-        for s in subs:
-            s.undeclare()
+        rt.unsubscribe()
+
+
+def _flags(p) -> None:
+    p.add_argument("--camera", help="camera name in the rig (required)")
+    p.add_argument("--source", help="replay:REC_DIR | v4l2:/dev/videoN | fake:REC_DIR | gst:PIPELINE (required)")
+    p.add_argument("--backgrounds-from", type=Path, metavar="REC_DIR",
+                   help="gst: sources: use this recording's stored backgrounds (and source kind)")
+    p.add_argument("--fps", type=float, help="live device frame rate (default: rig metadata fps or 30)")
+    p.add_argument("--perception-config", type=Path, help="perception TOML (default: built-in)")
+    p.add_argument("--preview-every", type=int, help="publish a JPEG every N frames (0 = never)")
+    p.add_argument("--publish-frames", action="store_true", help="publish raw frames + backgrounds (recorder)")
+    p.add_argument("--cv-threads", type=int,
+                   help="OpenCV threads in this worker (one process per camera already runs in parallel)")
+    p.add_argument("--standby", action="store_true",
+                   help="hot spare: warm up, then take the worker flags to run from stdin (module doc)")
 
 
 def build_parser():
     """The node's command line (also checked against the deploy units in the tests)."""
-    p = base_parser(__doc__.splitlines()[0], "")
-    p.add_argument("--camera", required=True, help="camera name in the rig")
-    p.add_argument("--source", required=True, help="replay:REC_DIR | v4l2:/dev/videoN | fake:REC_DIR | gst:PIPELINE")
-    p.add_argument("--backgrounds-from", default=None, metavar="REC_DIR",
-                   help="gst: sources: use this recording's stored backgrounds (and source kind)")
-    p.add_argument("--fps", type=float, default=30.0, help="live device frame rate")
-    p.add_argument("--perception-config", default=None, help="perception TOML (default: built-in)")
-    p.add_argument("--preview-every", type=int, default=0, help="publish a JPEG every N frames (0 = never)")
-    p.add_argument("--publish-frames", action="store_true", help="publish raw frames + backgrounds (recorder)")
-    p.add_argument("--cv-threads", type=int, default=1,
-                   help="OpenCV threads in this worker (one process per camera already runs in parallel)")
-    p.add_argument("--standby", action="store_true",
-                   help="hot spare: warm up, then take the worker flags to run from stdin (module doc)")
-    return p
+    return settings_parser(WorkerSettings, __doc__.splitlines()[0], _flags)
 
 
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
-    args = p.parse_args(argv)
-    setup_logging(args.log_level)
-    if args.standby:
-        args = standby(p, args)
-        if args is None:
+    s = parse_settings(p, WorkerSettings, argv)
+    if not (s.camera and s.source):
+        p.error("--camera and --source are required (flags or --config)")
+    if s.standby:
+        setup_logging(s.log_level)
+        s = standby(p, s)
+        if s is None:
             return 0
     import cv2
 
-    cv2.setNumThreads(args.cv_threads)
-    rig = load_rig(args)
-    camera = rig[args.camera]
     from nodes.sources import open_source
 
+    cv2.setNumThreads(s.cv_threads)
     t = [time.perf_counter()]
-    source = open_source(args.source, camera, args.fps, args.backgrounds_from)
-    with node_session(args, "camera", args.node or f"worker-{camera.name}") as rt:
+
+    def prepare(rig, stack):
+        source = open_source(s.source, rig[s.camera], s.fps or rig_fps(rig), s.backgrounds_from)
+        stack.callback(source.close)
+        return rig[s.camera], source
+
+    def setup(rt: NodeRuntime, rig, state):
+        camera, source = state
         t.append(time.perf_counter())
-        session, keys, node = rt.session, rt.keys, rt.node
-        rt.publish_status("starting", force=True)
-        try:
-            backgrounds = source.backgrounds()
-            perceiver = make_perceiver(camera, backgrounds, args.perception_config, source.origin)
-            t.append(time.perf_counter())
-            warm_up(camera, source, backgrounds, args.perception_config)
-            source.prefetch(0)          # the first trigger's image is ready (no seek back)
-            t.append(time.perf_counter())
-            log.info("%s: set up in %.2f s (source + session %.2f, perceiver %.2f, warm-up %.2f)",
-                     node, t[-1] - t[0], *(b - a for a, b in zip(t, t[1:])))
-            if args.publish_frames and source.live:
-                session.put(keys.background(camera.name),
-                            Background(keys.rig, camera.name, backgrounds).to_msgpack())
-            rt.enter_realtime(args.rt_priority)
-            rt.publish_status("ready", force=True)
-            run_worker(session, keys, camera, source, perceiver, rt, args.preview_every,
-                       args.publish_frames and source.live)
-            rt.publish_status("stopping", force=True)
-        finally:
-            source.close()
-    return 0
+        backgrounds = source.backgrounds()
+        perceiver = make_perceiver(camera, backgrounds, s.perception_config, source.origin)
+        t.append(time.perf_counter())
+        warm_up(camera, source, backgrounds, s.perception_config)
+        source.prefetch(0)          # the first trigger's image is ready (no seek back)
+        t.append(time.perf_counter())
+        log.info("%s: set up in %.2f s (source + session %.2f, perceiver %.2f, warm-up %.2f)",
+                 rt.node, t[-1] - t[0], *(b - a for a, b in zip(t, t[1:])))
+        if s.publish_frames and source.live:
+            rt.session.put(rt.keys.background(camera.name),
+                           Background(rt.keys.rig, camera.name, backgrounds).to_msgpack())
+        return camera, source, perceiver
+
+    def serve(rt: NodeRuntime, rig, state) -> None:
+        camera, source, perceiver = state
+        run_worker(rt.session, rt.keys, camera, source, perceiver, rt, s.preview_every,
+                   s.publish_frames and source.live)
+
+    return run_node("camera", s, serve, prepare=prepare, setup=setup, node=s.node or f"worker-{s.camera}")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,9 @@ import json
 import sys
 from pathlib import Path
 
+from mocap_rt.fusion.gather import DEFAULT_DEADLINE_FRAC
+from nodes.plan import DEFAULT_PREVIEW_EVERY
+
 NODE_MODULES = {"sync": "nodes.sync", "camera": "nodes.camera_worker", "fusion": "nodes.fusion_node",
                 "recorder": "nodes.recorder", "viewer": "nodes.viewer", "stream": "nodes.streamer"}
 
@@ -48,13 +51,13 @@ def register(subparsers) -> None:
                         "VSeeFace, EVMC4U, Warudo ...; see docs/streaming.md")
     p.add_argument("--allow-remote-stream", action="store_true",
                    help="let --stream send to a host other than this one (plain UDP, unauthenticated)")
-    p.add_argument("--deadline-frac", type=float, default=0.8,
-                   help="fusion waits for late cameras at most this fraction of a frame period")
+    p.add_argument("--deadline-frac", type=float, default=DEFAULT_DEADLINE_FRAC,
+                   help="fusion waits for late cameras at most this fraction of a frame period (default %(default)s)")
     p.add_argument("--bones", type=Path, default=None, metavar="TOML",
                    help="the subject's bone lengths ([bones] table, e.g. bones.toml of mocap-rt process); "
                         "default: estimated from the first seconds of the capture")
     p.add_argument("--preview-every", type=int, default=None,
-                   help="camera image to the viewer every N frames (default 3 with --rerun)")
+                   help=f"camera image to the viewer every N frames (default {DEFAULT_PREVIEW_EVERY} with --rerun)")
     p.add_argument("--no-restart", action="store_true", help="do not restart nodes that die")
     p.add_argument("--log-dir", type=Path, default=None, help="node logs (default: a temp dir)")
     p.add_argument("--quiet", action="store_true", help="no live status line")
@@ -74,16 +77,15 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nodes.launcher import Launcher, RunConfig, _json_safe
-    from nodes.preflight import check_run
+    from nodes.preflight import check_run, rig_path_for
 
-    rig = check_run(args)        # every input checked before a node starts: one line, no node traceback
-    cfg = RunConfig(rig_path=Path(rig), source=args.source, speed=args.speed, duration_s=args.duration,
-                    rerun=args.rerun, record=args.record, stats=args.stats, deadline_frac=args.deadline_frac,
-                    bones=args.bones, preview_every=args.preview_every, restart=not args.no_restart,
-                    log_dir=args.log_dir,
-                    status_line=not args.quiet, nice=args.nice,
-                    rt_priority=args.rt_priority, stream=args.stream,
-                    allow_remote_stream=args.allow_remote_stream, backgrounds_from=args.backgrounds_from)
+    cfg = RunConfig(rig_path=rig_path_for(args.source, args.rig), source=args.source, speed=args.speed,
+                    duration_s=args.duration, rerun=args.rerun, record=args.record, stats=args.stats,
+                    deadline_frac=args.deadline_frac, bones=args.bones, preview_every=args.preview_every,
+                    restart=not args.no_restart, log_dir=args.log_dir, status_line=not args.quiet, nice=args.nice,
+                    rt_priority=args.rt_priority, stream=args.stream, allow_remote_stream=args.allow_remote_stream,
+                    backgrounds_from=args.backgrounds_from)
+    check_run(cfg)               # every input checked before a node starts: one line, no node traceback
     launcher = Launcher(cfg)
     notice = record_notice(args.record) if args.record is not None else None
     if notice:

@@ -9,15 +9,17 @@ camera (a period before the next trigger; when free-running, predictions go firs
 within ``LIVENESS_S``; a killed worker therefore costs at most a deadline on a few frames,
 and a restarted one is counted again with its first answer.
 
-    python -m nodes.fusion_node --rig RIG.toml [--deadline-frac 0.8]
+    python -m nodes.fusion_node --rig RIG.toml [--deadline-frac 0.8] [--config fusion.toml]
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +29,8 @@ from mocap_rt.fusion.gather import (DEFAULT_DEADLINE_FRAC, FIRST_FRAME_GRACE_S, 
                                     LIVENESS_S, MAX_PENDING_FRAMES, FrameGatherer, PendingFrame)
 from nodes.frame_window import FrameWindow
 from nodes.messages import Cues, Keys, Pose, Prediction, Trigger
-from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
-from nodes.transport import direct_callback
+from nodes.node import NodeSettings, parse_settings, rig_fps, run_node, settings_parser
+from nodes.runtime import IdleGC, NodeRuntime
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +41,26 @@ WARM_UP_FRAMES = 3
 WARM_UP_COV_PX2 = 4.0
 
 
-def make_tracker(rig, fps: float = 30.0, bone_lengths=None):
+@dataclass(frozen=True)
+class FusionSettings(NodeSettings):
+    """deadline_frac : wait for late cameras at most this fraction of the frame period, in
+    (0, 1]; fps : frame rate of the frame ids (None: the rig's); bones : the subject's bone
+    lengths TOML ([bones] table; None: estimated from the first seconds of cues)."""
+
+    node: str = "fusion"
+    deadline_frac: float = DEFAULT_DEADLINE_FRAC
+    fps: float | None = None
+    bones: Path | None = None
+
+    def __post_init__(self) -> None:
+        NodeSettings.__post_init__(self)
+        if not (math.isfinite(self.deadline_frac) and 0.0 < self.deadline_frac <= 1.0):
+            raise ValueError(f"deadline_frac must be in (0, 1], got {self.deadline_frac}")
+        if self.bones is not None:
+            object.__setattr__(self, "bones", Path(self.bones))
+
+
+def make_tracker(rig, fps: float, bone_lengths=None):
     """D's ``BodyTracker`` with its default config at the stream's frame rate; the bone
     lengths are estimated from the first seconds of cues unless given."""
     from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
@@ -47,7 +68,7 @@ def make_tracker(rig, fps: float = 30.0, bone_lengths=None):
     return BodyTracker(rig, FusionConfig(fps=fps, bone_lengths=bone_lengths))
 
 
-def warm_up(rig, fps: float = 30.0) -> float:
+def warm_up(rig, fps: float) -> float:
     """Run a throw-away tracker on synthetic cues so every numba kernel is compiled/loaded
     before the first real frame (the first step otherwise takes seconds). Returns seconds."""
     from mocap_rt.cues import N_CUES, CameraCues, CompactSilhouette
@@ -177,8 +198,8 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
 
     pose_pub = session.declare_publisher(keys.pose, express=True)
     pred_pubs = {c: session.declare_publisher(keys.prediction(c), express=True) for c in rig_cameras}
-    subs = [session.declare_subscriber(keys.trigger, direct_callback(on_trigger)),
-            session.declare_subscriber(keys.cues(), direct_callback(on_cues))]
+    rt.subscribe(keys.trigger, on_trigger, direct=True)
+    rt.subscribe(keys.cues(), on_cues, direct=True)
     rt.publish_status("running", force=True)
     gcs = IdleGC()
     gcs.start()
@@ -215,43 +236,40 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
             rt.publish_status()
     finally:
         gcs.stop()
-        for s in subs:
-            s.undeclare()
+        rt.unsubscribe()
+
+
+def _flags(p) -> None:
+    p.add_argument("--deadline-frac", type=float,
+                   help="wait for late cameras at most this fraction of the frame period (default %(default)s)")
+    p.add_argument("--fps", type=float, help="frame rate of the frame ids (default rig metadata fps or 30)")
+    p.add_argument("--bones", type=Path, metavar="TOML",
+                   help="the subject's bone lengths ([bones] table); default: estimated from the "
+                        "first seconds of cues")
 
 
 def build_parser():
     """The node's command line (also checked against the deploy units in the tests)."""
-    p = base_parser(__doc__.splitlines()[0], "fusion")
-    p.add_argument("--deadline-frac", type=float, default=DEFAULT_DEADLINE_FRAC,
-                   help="wait for late cameras at most this fraction of the frame period")
-    p.add_argument("--fps", type=float, default=None,
-                   help="frame rate of the frame ids (default rig metadata fps or 30)")
-    p.add_argument("--bones", type=Path, default=None, metavar="TOML",
-                   help="the subject's bone lengths ([bones] table); default: estimated from the "
-                        "first seconds of cues")
-    return p
+    return settings_parser(FusionSettings, __doc__.splitlines()[0], _flags)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = build_parser()
-    args = p.parse_args(argv)
-    setup_logging(args.log_level)
-    if not 0.0 < args.deadline_frac <= 1.0:
-        raise ValueError(f"--deadline-frac must be in (0, 1], got {args.deadline_frac}")
-    rig = load_rig(args)
-    from mocap_rt.body.skeleton import read_bone_lengths
+    s = parse_settings(build_parser(), FusionSettings, argv)
 
-    bones = read_bone_lengths(args.bones) if args.bones else None   # fails before joining
-    with node_session(args, "fusion") as rt:
-        rt.publish_status("starting", force=True)
-        fps = args.fps or rig_fps(rig)
+    def prepare(rig, stack):
+        from mocap_rt.body.skeleton import read_bone_lengths
+
+        return read_bone_lengths(s.bones) if s.bones else None     # fails before joining
+
+    def setup(rt: NodeRuntime, rig, bones):
+        fps = s.fps or rig_fps(rig)
         log.info("fusion: warm-up took %.2f s", warm_up(rig, fps))
-        tracker = make_tracker(rig, fps, bones)
-        rt.enter_realtime(args.rt_priority)
-        rt.publish_status("ready", force=True)
-        run_fusion(rt.session, rt.keys, rig, tracker, rt, args.deadline_frac)
-        rt.publish_status("stopping", force=True)
-    return 0
+        return make_tracker(rig, fps, bones)
+
+    def serve(rt: NodeRuntime, rig, tracker) -> None:
+        run_fusion(rt.session, rt.keys, rig, tracker, rt, s.deadline_frac)
+
+    return run_node("fusion", s, serve, prepare=prepare, setup=setup)
 
 
 if __name__ == "__main__":

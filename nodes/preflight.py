@@ -30,52 +30,59 @@ def check_rig_against_recording(rig, rig_path: Path, rec) -> None:
                              f"recording's images are {want[0]}x{want[1]}")
 
 
-def check_options(args) -> None:
-    """The flags the nodes would otherwise reject at start-up."""
-    from nodes.viewer import parse_rerun
+def check_options(cfg) -> None:
+    """The options (``RunConfig``) the nodes would otherwise reject at start-up."""
+    from nodes.rerun_sink import parse_rerun
 
-    if args.rerun is not None:
-        mode, _ = parse_rerun(args.rerun)
+    if cfg.rerun is not None:
+        mode, _ = parse_rerun(cfg.rerun)
         if mode == "spawn" and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
             raise ValueError("--rerun spawn needs a display (DISPLAY/WAYLAND_DISPLAY unset); "
                              "use --rerun save:FILE.rrd or serve")
-    if not (math.isfinite(args.deadline_frac) and 0.0 < args.deadline_frac <= 1.0):
-        raise ValueError(f"--deadline-frac must be in (0, 1], got {args.deadline_frac}")
-    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
-        raise ValueError(f"--duration must be a number > 0, got {args.duration}")
-    if args.preview_every is not None and args.preview_every < 0:
-        raise ValueError(f"--preview-every must be >= 0, got {args.preview_every}")
-    if args.rt_priority is not None and not 0 <= args.rt_priority <= MAX_RT_PRIORITY:
-        raise ValueError(f"--rt-priority must be in 0..{MAX_RT_PRIORITY}, got {args.rt_priority}")
-    if not -20 <= args.nice <= 19:
-        raise ValueError(f"--nice must be in -20..19, got {args.nice}")
-    if args.record is not None and Path(args.record).exists() and not Path(args.record).is_dir():
-        raise ValueError(f"--record {args.record}: exists and is not a directory")
-    if args.bones is not None:
+    if not (math.isfinite(cfg.deadline_frac) and 0.0 < cfg.deadline_frac <= 1.0):
+        raise ValueError(f"--deadline-frac must be in (0, 1], got {cfg.deadline_frac}")
+    if cfg.duration_s is not None and not (math.isfinite(cfg.duration_s) and cfg.duration_s > 0):
+        raise ValueError(f"--duration must be a number > 0, got {cfg.duration_s}")
+    if cfg.preview_every is not None and cfg.preview_every < 0:
+        raise ValueError(f"--preview-every must be >= 0, got {cfg.preview_every}")
+    if cfg.rt_priority is not None and not 0 <= cfg.rt_priority <= MAX_RT_PRIORITY:
+        raise ValueError(f"--rt-priority must be in 0..{MAX_RT_PRIORITY}, got {cfg.rt_priority}")
+    if not -20 <= cfg.nice <= 19:
+        raise ValueError(f"--nice must be in -20..19, got {cfg.nice}")
+    if cfg.record is not None and Path(cfg.record).exists() and not Path(cfg.record).is_dir():
+        raise ValueError(f"--record {cfg.record}: exists and is not a directory")
+    if cfg.bones is not None:
         from mocap_rt.body.skeleton import read_bone_lengths
 
-        read_bone_lengths(args.bones)
-    bg = getattr(args, "backgrounds_from", None)
-    if bg is not None and not (Path(bg) / "recording.toml").is_file():
-        raise FileNotFoundError(f"--backgrounds-from {bg}: not a recording directory")
-    if getattr(args, "stream", None) is not None:
+        read_bone_lengths(cfg.bones)
+    if cfg.backgrounds_from is not None and not (Path(cfg.backgrounds_from) / "recording.toml").is_file():
+        raise FileNotFoundError(f"--backgrounds-from {cfg.backgrounds_from}: not a recording directory")
+    if cfg.stream is not None:
         from mocap_rt.io.vmc import parse_vmc_target
 
-        parse_vmc_target(args.stream, args.allow_remote_stream)
+        parse_vmc_target(cfg.stream, cfg.allow_remote_stream)
 
 
-def check_run(args) -> Path:
-    """All checks of ``mocap-rt run`` (module doc); returns the rig path to use."""
+def rig_path_for(source: str, rig: Path | None) -> Path:
+    """``--rig``, else a recording's ``rig.toml`` (replay/fake sources); ValueError for others."""
+    from nodes.sources import parse_source
+
+    kind, value = parse_source(source)
+    if rig is not None:
+        return Path(rig)
+    if kind not in ("replay", "fake"):
+        raise ValueError(f"--rig is required for {kind} sources")
+    return Path(value) / "rig.toml"
+
+
+def check_run(cfg) -> None:
+    """All checks of ``mocap-rt run`` (module doc) on its ``RunConfig``."""
     from mocap_rt.geometry.rig import read_rig
     from nodes.sources import parse_source
 
-    kind, value = parse_source(args.source)
-    check_options(args)
-    rig_path = args.rig
-    if rig_path is None:
-        if kind not in ("replay", "fake"):
-            raise ValueError(f"--rig is required for {kind} sources")
-        rig_path = Path(value) / "rig.toml"
+    kind, value = parse_source(cfg.source)
+    check_options(cfg)
+    rig_path = cfg.rig_path
     if not Path(rig_path).is_file():
         raise FileNotFoundError(f"rig file {rig_path} not found")
     rig = read_rig(rig_path)
@@ -83,13 +90,12 @@ def check_run(args) -> Path:
         from mocap_rt.io.recording import Recording
 
         if not (Path(value) / "recording.toml").is_file():
-            raise FileNotFoundError(f"--source {args.source}: {value} is not a recording directory "
+            raise FileNotFoundError(f"--source {cfg.source}: {value} is not a recording directory "
                                     f"(no recording.toml)")
         with Recording(value) as rec:          # recording.toml, frames.csv, video sizes: checked on open
             if rec.n_frames < 1:
-                raise ValueError(f"--source {args.source}: the recording has no frames")
+                raise ValueError(f"--source {cfg.source}: the recording has no frames")
             check_rig_against_recording(rig, Path(rig_path), rec)
     elif kind == "v4l2" and len(value.split(",")) != len(rig):
         raise ValueError(f"--source v4l2: {len(value.split(','))} device(s) for {len(rig)} rig cameras "
                          f"(give one per camera, in rig order, comma-separated)")
-    return Path(rig_path)

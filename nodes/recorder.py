@@ -29,6 +29,7 @@ import logging
 import queue
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +40,8 @@ from mocap_rt.io.bvh_writer import BvhStreamWriter
 from mocap_rt.io.files import atomic_write
 from nodes.frame_window import RECORD_BEHIND, FrameWindow
 from nodes.messages import Background, Frame, Keys, Pose, Trigger
-from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
+from nodes.node import NodeSettings, parse_settings, rig_fps, run_node, settings_parser
+from nodes.runtime import NodeRuntime
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +50,22 @@ RAW_GATHER_S = 1.0             # wait this long for every camera's image of a fr
 STREAM_DIR = "stream"
 EXPORT_MIN_PERIOD_S = 1.0      # C3D/TRC rewrite period (short sessions)
 EXPORT_COST_FACTOR = 20.0      # ... at least this times the last rewrite's duration (<= 5 % CPU)
+
+
+@dataclass(frozen=True)
+class RecorderSettings(NodeSettings):
+    """out : the output directory (required); fps : frame rate of the BVH and the stream (None:
+    the rig's); raw : also record the raw multi-view stream (live sources)."""
+
+    node: str = "recorder"
+    out: Path | None = None
+    fps: float | None = None
+    raw: bool = False
+
+    def __post_init__(self) -> None:
+        NodeSettings.__post_init__(self)
+        if self.out is not None:
+            object.__setattr__(self, "out", Path(self.out))
 
 
 class PoseLog:
@@ -270,11 +288,11 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
         elif isinstance(msg, Background) and stream is not None:
             stream.on_background(msg)
 
-    subs = [session.declare_subscriber(keys.pose, subscriber(Pose)),
-            session.declare_subscriber(keys.trigger, subscriber(Trigger))]
+    rt.subscribe(keys.pose, subscriber(Pose))
+    rt.subscribe(keys.trigger, subscriber(Trigger))
     if raw:
-        subs += [session.declare_subscriber(keys.frame(), subscriber(Frame)),
-                 session.declare_subscriber(keys.background(), subscriber(Background))]
+        rt.subscribe(keys.frame(), subscriber(Frame))
+        rt.subscribe(keys.background(), subscriber(Background))
     rt.publish_status("running", force=True)
     last_snap = time.monotonic()
     try:
@@ -294,8 +312,7 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
             rt.extra.update(window.counters())
             rt.publish_status()
     finally:
-        for s in subs:
-            s.undeclare()
+        rt.unsubscribe()
         while True:     # what already arrived is still written
             try:
                 handle(inbox.get_nowait())
@@ -307,26 +324,27 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
         log.info("recorder: %d poses written to %s", len(poses.log), out_dir)
 
 
+def _flags(p) -> None:
+    p.add_argument("--out", type=Path, help="output directory (required)")
+    p.add_argument("--fps", type=float, help="frame rate for BVH/stream (default rig metadata or 30)")
+    p.add_argument("--raw", action="store_true", help="also record the raw multi-view stream (live sources)")
+
+
 def build_parser():
     """The node's command line (also checked against the deploy units in the tests)."""
-    p = base_parser(__doc__.splitlines()[0], "recorder")
-    p.add_argument("--out", type=Path, required=True, help="output directory")
-    p.add_argument("--fps", type=float, default=None, help="frame rate for BVH/stream (default rig metadata or 30)")
-    p.add_argument("--raw", action="store_true", help="also record the raw multi-view stream (live sources)")
-    return p
+    return settings_parser(RecorderSettings, __doc__.splitlines()[0], _flags)
 
 
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
-    args = p.parse_args(argv)
-    setup_logging(args.log_level)
-    rig = load_rig(args)
-    fps = args.fps or rig_fps(rig)
-    with node_session(args, "recorder") as rt:
-        rt.publish_status("ready", force=True)
-        run_recorder(rt.session, rt.keys, rig, args.out, fps, args.raw, rt)
-        rt.publish_status("stopping", force=True)
-    return 0
+    s = parse_settings(p, RecorderSettings, argv)
+    if s.out is None:
+        p.error("--out is required (flag or --config)")
+
+    def serve(rt: NodeRuntime, rig, _) -> None:
+        run_recorder(rt.session, rt.keys, rig, s.out, s.fps or rig_fps(rig), s.raw, rt)
+
+    return run_node("recorder", s, serve)
 
 
 if __name__ == "__main__":

@@ -1,74 +1,30 @@
-"""What every node process shares: common flags, signal handling, status reports.
+"""What a running node has: its session and ``NodeRuntime``, real-time priority, idle-time GC.
 
-A node is ``main(args) -> int`` around a loop body of decode -> library call -> encode.
 ``NodeRuntime`` owns the stop event (SIGINT/SIGTERM set it), the decoder with its drop
-counters and the once-a-second ``Status`` message.
+counters, the rate meter and the once-a-second ``Status`` message; ``node_session`` opens it
+(how a node process starts is ``nodes/node.py``).
 """
 
 from __future__ import annotations
 
-import argparse
 import gc
 import logging
 import os
 import random
-import re
 import signal
 import statistics
 import threading
 import time
 from collections import deque
 from contextlib import contextmanager
-from pathlib import Path
 
 from nodes.messages import Decoder, Keys, Status
-from nodes.transport import add_zenoh_args, open_session
+from nodes.transport import open_session
 
 log = logging.getLogger(__name__)
 
-DEFAULT_FPS = 30.0          # a rig's frame rate when its metadata has none
 STATUS_PERIOD_S = 1.0       # how often a node reports its status
 RATE_WINDOW_S = 2.0         # fps / processing time are measured over this window
-
-
-def rig_name_for(rig_path: Path, rig) -> str:
-    """The rig's key-expression name: ``[metadata] name`` or the file stem, sanitised."""
-    raw = str(rig.metadata.get("name") or Path(rig_path).stem)
-    return re.sub(r"[^A-Za-z0-9_.\-]", "_", raw)[:64] or "rig"
-
-
-def base_parser(description: str, node_default: str) -> argparse.ArgumentParser:
-    """Flags shared by every node: rig, rig name, node name, Zenoh endpoints, logging."""
-    p = argparse.ArgumentParser(description=description)
-    p.add_argument("--rig", type=Path, required=True, help="rig calibration TOML")
-    p.add_argument("--rig-name", default=None, help="key-expression name (default: from the rig)")
-    p.add_argument("--node", default=node_default, help="node name in status messages")
-    p.add_argument("--log-level", default="INFO")
-    p.add_argument("--rt-priority", type=int, default=0,
-                   help="once warmed up, run every thread of this node SCHED_FIFO at this priority "
-                        "(1-99; 0 = normal scheduling; needs root or CAP_SYS_NICE)")
-    add_zenoh_args(p)
-    return p
-
-
-def setup_logging(level: str) -> None:
-    logging.basicConfig(level=getattr(logging, str(level).upper(), logging.INFO),
-                        format="%(asctime)s %(levelname)s %(name)s[%(process)d]: %(message)s")
-
-
-def rig_fps(rig) -> float:
-    """The rig's frame rate: ``[metadata] fps``, else ``DEFAULT_FPS``."""
-    return float(rig.metadata.get("fps", DEFAULT_FPS))
-
-
-def load_rig(args: argparse.Namespace):
-    """Read ``args.rig`` and fill ``args.rig_name``; returns the Rig."""
-    from mocap_rt.geometry.rig import read_rig
-
-    rig = read_rig(args.rig)
-    if not args.rig_name:
-        args.rig_name = rig_name_for(args.rig, rig)
-    return rig
 
 
 def enter_realtime(priority: int) -> bool:
@@ -102,11 +58,11 @@ def enter_realtime(priority: int) -> bool:
 
 
 @contextmanager
-def node_session(args: argparse.Namespace, role: str, node: str | None = None):
-    """A node's Zenoh session and its ``NodeRuntime`` (``rt.session``, ``rt.keys``; SIGINT
-    and SIGTERM set ``rt.stop``), from the flags of ``base_parser`` after ``load_rig``."""
-    with open_session(args) as session:
-        rt = NodeRuntime(session, Keys(args.rig_name), node or args.node, role)
+def node_session(settings, rig_name: str, role: str, node: str):
+    """A node's Zenoh session (``settings``: ``nodes.node.NodeSettings``) and its
+    ``NodeRuntime`` (``rt.session``, ``rt.keys``; SIGINT and SIGTERM set ``rt.stop``)."""
+    with open_session(settings) as session:
+        rt = NodeRuntime(session, Keys(rig_name), node, role)
         rt.install_signal_handlers()
         if role in KERNEL_ROLES:
             rt.publish_status("starting", force=True)
@@ -139,11 +95,9 @@ class ThreadPriority:
     A real-time worker does its deferred work (decoding the next replay image, preview JPEG,
     raw frames) at ``DEFERRED_RT_PRIORITY``: below every thread of the frame path (workers
     10, fusion 11, sync 12), so it never delays another camera's frame, but still above
-    ordinary work on the host. (At normal priority, a loaded host, e.g. a viewer or other
-    jobs, starved it: the next image was not decoded when its trigger came, and the frame
-    waited for it: 58 % instead of 97 % of the demo's poses had all six cameras.) Only this
-    thread switches (a syscall, microseconds); Zenoh's threads keep their priority. Does
-    nothing when the thread is not real-time.
+    ordinary work on the host, which starved it at normal priority (docs/service.md,
+    "Latency"). Only this thread switches (a syscall, microseconds); Zenoh's threads keep
+    their priority. Does nothing when the thread is not real-time.
     """
 
     def __init__(self) -> None:
@@ -221,6 +175,19 @@ class NodeRuntime:
         self._status_pub = session.declare_publisher(keys.status(node))
         self.extra["rt_priority"] = 0
         self._last_status = 0.0
+        self._subs: list = []
+
+    def subscribe(self, key: str, handler, direct: bool = False) -> None:
+        """Declare a subscriber on ``key`` (``direct``: ``handler`` runs on Zenoh's receiving
+        thread, ``nodes.transport.direct_callback``); ``unsubscribe`` ends them all."""
+        from nodes.transport import direct_callback
+
+        self._subs.append(self.session.declare_subscriber(key, direct_callback(handler) if direct else handler))
+
+    def unsubscribe(self) -> None:
+        """Undeclare every subscriber of ``subscribe``."""
+        while self._subs:
+            self._subs.pop().undeclare()
 
     def enter_realtime(self, priority: int) -> None:
         """``enter_realtime`` for this node; the status reports the priority it got."""
@@ -251,16 +218,6 @@ class NodeRuntime:
         except Exception as exc:  # a status report must never stop the node
             log.warning("%s: status not sent: %s", self.node, exc)
 
-    def status_loop_thread(self) -> threading.Thread:
-        """A daemon thread sending status while the main loop may block."""
-        def run():
-            while not self.stop.wait(STATUS_PERIOD_S / 2):
-                self.publish_status()
-        th = threading.Thread(target=run, name=f"{self.node}-status", daemon=True)
-        th.start()
-        return th
-
-
 class IdleGC:
     """Garbage collection only when the node is idle, never in the middle of a frame.
 
@@ -286,7 +243,6 @@ class IdleGC:
         gc.freeze()
         gc.disable()
         # a random phase: nodes started together must not all collect in the same frame
-        # (six workers' full collections at once delayed a demo frame by 60 ms)
         self._last_full = time.monotonic() - random.uniform(0.0, self.FULL_EVERY_S / 2)
 
     def idle(self) -> None:

@@ -21,6 +21,8 @@ import socket
 import sys
 import threading
 import time
+from dataclasses import dataclass
+
 import numpy as np
 
 from mocap_rt.body.humanoid import HumanoidRig, humanoid_pose_from_bvh_row
@@ -28,8 +30,8 @@ from mocap_rt.body.skeleton import BoneLengths, body_model
 from mocap_rt.io.vmc import VmcEncoder, parse_vmc_target
 from nodes.frame_window import FrameWindow
 from nodes.messages import Pose, Trigger
-from nodes.runtime import STATUS_PERIOD_S, IdleGC, NodeRuntime, base_parser, load_rig, node_session, setup_logging
-from nodes.transport import direct_callback
+from nodes.node import NodeSettings, parse_settings, run_node, settings_parser
+from nodes.runtime import STATUS_PERIOD_S, IdleGC, NodeRuntime
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +63,16 @@ class LatencyWindow:
         p50, p99 = np.percentile(a[:, 0], (50, 99))
         return {"added_ms_p50": float(p50), "added_ms_p99": float(p99),
                 "pub_to_send_ms_p99": float(np.percentile(a[:, 1], 99))}
+
+
+@dataclass(frozen=True)
+class StreamerSettings(NodeSettings):
+    """stream : vmc[:HOST[:PORT]] (default 127.0.0.1:39539); allow_remote_stream : let HOST be
+    another machine (the stream is plain UDP)."""
+
+    node: str = "streamer"
+    stream: str = "vmc"
+    allow_remote_stream: bool = False
 
 
 class VmcSender:
@@ -143,53 +155,50 @@ def run_streamer(session, keys, sender: VmcSender, rt: NodeRuntime) -> None:
             rt.extra.update(lat.percentiles())
 
     idle_gc.start()
-    subs = [session.declare_subscriber(keys.pose, direct_callback(on_pose)),
-            session.declare_subscriber(keys.trigger, direct_callback(on_trigger))]
+    rt.subscribe(keys.pose, on_pose, direct=True)
+    rt.subscribe(keys.trigger, on_trigger, direct=True)
     rt.publish_status("running", force=True)
     try:
         while not rt.stop.wait(STATUS_PERIOD_S / 2):
             rt.extra.update(sent=sender.sent, send_errors=sender.send_errors, **window.counters())
             rt.publish_status()
     finally:
-        for sub in subs:
-            sub.undeclare()
+        rt.unsubscribe()
         idle_gc.stop()
         log.info("streamer: %d bundles sent to %s:%d, %d send errors, %d poses dropped",
                  sender.sent, *sender.target, sender.send_errors, rt.drops)
 
 
-def build_parser():
-    """The node's command line."""
-    p = base_parser(__doc__.splitlines()[0], "streamer")
-    p.add_argument("--stream", default="vmc", help="vmc[:HOST[:PORT]] (default vmc:127.0.0.1:39539)")
+def _flags(p) -> None:
+    p.add_argument("--stream", help="vmc[:HOST[:PORT]] (default vmc:127.0.0.1:39539)")
     p.add_argument("--allow-remote-stream", action="store_true",
                    help="allow a HOST that is not this machine (the stream is plain UDP)")
-    return p
+
+
+def build_parser():
+    """The node's command line (also checked against the deploy units in the tests)."""
+    return settings_parser(StreamerSettings, __doc__.splitlines()[0], _flags)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = build_parser()
-    args = p.parse_args(argv)
-    setup_logging(args.log_level)
-    target = parse_vmc_target(args.stream, args.allow_remote_stream)
-    load_rig(args)
-    sender = VmcSender(target)
-    # the first bundle's conversion (imports, scipy) is made now, not on the first pose
-    from mocap_rt.body.bvh_export import bvh_skeleton_of
+    s = parse_settings(build_parser(), StreamerSettings, argv)
 
-    n_ch = bvh_skeleton_of(BoneLengths()).n_channels
-    sender.bundle(Pose("warm-up", 0, 0, 0, np.zeros((6, 3)), np.zeros(6, bool), np.zeros((20, 3)),
-                       np.zeros(n_ch), (), (), BoneLengths().as_array()))
-    log.info("streamer: VMC bundles to %s:%d", *target)
-    try:
-        with node_session(args, "streamer") as rt:
-            rt.enter_realtime(args.rt_priority)     # the launcher's SCHED_FIFO: above fusion's predictions
-            rt.publish_status("ready", force=True)
-            run_streamer(rt.session, rt.keys, sender, rt)
-            rt.publish_status("stopping", force=True)
-    finally:
-        sender.close()
-    return 0
+    def prepare(rig, stack) -> VmcSender:
+        target = parse_vmc_target(s.stream, s.allow_remote_stream)
+        sender = VmcSender(target)
+        stack.callback(sender.close)
+        # the first bundle's conversion (imports, scipy) is made now, not on the first pose
+        from mocap_rt.body.bvh_export import bvh_skeleton_of
+
+        n_ch = bvh_skeleton_of(BoneLengths()).n_channels
+        sender.bundle(Pose("warm-up", 0, 0, 0, np.zeros((6, 3)), np.zeros(6, bool), np.zeros((20, 3)),
+                           np.zeros(n_ch), (), (), BoneLengths().as_array()))
+        log.info("streamer: VMC bundles to %s:%d", *target)
+        return sender
+
+    # the launcher's SCHED_FIFO puts the streamer above fusion's predictions
+    return run_node("streamer", s, lambda rt, rig, sender: run_streamer(rt.session, rt.keys, sender, rt),
+                    prepare=prepare)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ launcher) free-runs instead: the next trigger goes out as soon as the pose of th
 frame arrived (or after ``MAX_FREE_RUN_WAIT_S``).
 
     python -m nodes.sync --rig RIG.toml --fps 30 [--frames N] [--listen ...] [--connect ...]
+    python -m nodes.sync --config sync.toml        # the same as SyncSettings in TOML
 """
 
 from __future__ import annotations
@@ -16,9 +17,11 @@ import logging
 import sys
 import threading
 import time
+from dataclasses import dataclass
 
 from nodes.messages import Keys, Pose, Trigger
-from nodes.runtime import IdleGC, NodeRuntime, base_parser, load_rig, node_session, rig_fps, setup_logging
+from nodes.node import NodeSettings, parse_settings, rig_fps, run_node, settings_parser
+from nodes.runtime import IdleGC, NodeRuntime
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +29,20 @@ SPIN_S = 0.0005               # final busy-wait before a trigger, for sub-ms pun
 PEER_WAIT_S = 10.0            # --expect-peers: wait at most this long for the links
 DECLARE_SETTLE_S = 0.2        # after the links are up, let subscriber declarations arrive
 MAX_FREE_RUN_WAIT_S = 0.25    # free-running: re-trigger if no pose came back by then
+
+
+@dataclass(frozen=True)
+class SyncSettings(NodeSettings):
+    """fps : trigger rate, 0 = free-run (None: the rig's); frames : stop after this many
+    triggers (None: never); start_frame : the first frame id; start_delay : seconds before the
+    first trigger; expect_peers : wait until this many peers are connected first."""
+
+    node: str = "sync"
+    fps: float | None = None
+    frames: int | None = None
+    start_frame: int = 0
+    start_delay: float = 0.0
+    expect_peers: int = 0
 
 
 class Schedule:
@@ -132,34 +149,33 @@ def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame:
     return sent
 
 
+def _flags(p) -> None:
+    p.add_argument("--fps", type=float, help="trigger rate; 0 = free-run (default: rig metadata fps or 30)")
+    p.add_argument("--frames", type=int, help="stop after this many triggers")
+    p.add_argument("--start-frame", type=int)
+    p.add_argument("--start-delay", type=float, help="seconds to wait before the first trigger")
+    p.add_argument("--expect-peers", type=int,
+                   help="before the first trigger, wait until this many peers are connected")
+
+
 def build_parser():
     """The node's command line (also checked against the deploy units in the tests)."""
-    p = base_parser(__doc__.splitlines()[0], "sync")
-    p.add_argument("--fps", type=float, default=None, help="trigger rate; 0 = free-run (default: rig metadata fps or 30)")
-    p.add_argument("--frames", type=int, default=None, help="stop after this many triggers")
-    p.add_argument("--start-frame", type=int, default=0)
-    p.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before the first trigger")
-    p.add_argument("--expect-peers", type=int, default=0,
-                   help="before the first trigger, wait until this many peers are connected")
-    return p
+    return settings_parser(SyncSettings, __doc__.splitlines()[0], _flags)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = build_parser()
-    args = p.parse_args(argv)
-    setup_logging(args.log_level)
-    rig = load_rig(args)
-    fps = args.fps if args.fps is not None else rig_fps(rig)
-    with node_session(args, "sync") as rt:
-        rt.publish_status("ready", force=True)
-        if args.expect_peers > 0:
-            wait_for_peers(rt.session, args.expect_peers, rt)
-        if args.start_delay > 0:
-            rt.stop.wait(args.start_delay)
-        rt.enter_realtime(args.rt_priority)
-        sent = run_sync(rt.session, rt.keys, fps, args.frames, args.start_frame, rt)
+    s = parse_settings(build_parser(), SyncSettings, argv)
+
+    def serve(rt: NodeRuntime, rig, _) -> None:
+        if s.expect_peers > 0:
+            wait_for_peers(rt.session, s.expect_peers, rt)
+        if s.start_delay > 0:
+            rt.stop.wait(s.start_delay)
+        fps = s.fps if s.fps is not None else rig_fps(rig)
+        sent = run_sync(rt.session, rt.keys, fps, s.frames, s.start_frame, rt)
         log.info("sync: %d triggers sent, %d slots skipped", sent, rt.drops)
-    return 0
+
+    return run_node("sync", s, serve)
 
 
 if __name__ == "__main__":

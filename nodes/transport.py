@@ -71,13 +71,14 @@ def direct_callback(fn):
     return zenoh.handlers.Callback(fn, indirect=False)
 
 
-def open_session(args: argparse.Namespace):
-    """Open a Zenoh session from the flags of ``add_zenoh_args``."""
+def open_session(settings):
+    """Open a Zenoh session from ``listen``, ``connect``, ``zenoh_config`` and ``shm`` of
+    ``settings`` (a node's ``NodeSettings``, or the flags of ``add_zenoh_args``)."""
     import zenoh
 
-    conf = make_config(args.listen, args.connect, args.zenoh_config, args.shm)
+    conf = make_config(settings.listen, settings.connect, settings.zenoh_config, settings.shm)
     session = zenoh.open(conf)
-    log.debug("zenoh session %s listen=%s connect=%s", session.info.zid(), args.listen, args.connect)
+    log.debug("zenoh session %s listen=%s connect=%s", session.info.zid(), settings.listen, settings.connect)
     return session
 
 

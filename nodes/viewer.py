@@ -16,37 +16,30 @@ The viewer works on what the frame path leaves (the launcher runs it niced): it 
 images the workers send (one per ``--preview-every`` frames), drops the oldest items when it
 falls behind, and says so in its log, its status (``extra``) and the ``viewer`` text entity.
 
-``--rerun save:FILE.rrd`` writes a file; ``serve[:WEB_PORT[:GRPC_PORT]]`` keeps a gRPC
-server bound to 127.0.0.1 and hosts the web viewer on 127.0.0.1 (``rerun --serve-web
---bind 127.0.0.1``); ``spawn`` starts the native viewer (needs a display);
-``connect:URL`` streams to a running viewer. Visualisation never stops the service: a
-logging error is a warning, and when the viewer falls behind, old items are dropped.
+Where the stream goes (``--rerun``) is ``nodes/rerun_sink.py``. Visualisation never stops the
+service: a logging error is a warning, and when the viewer falls behind, old items are dropped.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-import threading
-from collections import deque
-import shutil
-import subprocess
 import sys
+import threading
 import time
-from pathlib import Path
+from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 
 from nodes.frame_window import FrameWindow
 from nodes.messages import Cues, Keys, Pose, Preview, Trigger
-from nodes.procs import die_with_parent
-from nodes.runtime import NodeRuntime, base_parser, load_rig, node_session, setup_logging
+from nodes.node import NodeSettings, parse_settings, run_node, settings_parser
+from nodes.rerun_sink import parse_rerun, start_sink, web_viewer_url  # noqa: F401  (web_viewer_url: API)
+from nodes.runtime import NodeRuntime
 
 log = logging.getLogger(__name__)
 
-DEFAULT_WEB_PORT = 9090
-DEFAULT_GRPC_PORT = 9876
-SERVE_MEMORY_LIMIT = "64MiB"    # history kept for late web viewers (~1.5 min of a 640x480 demo)
 QUEUE_MAX = 256                 # items waiting to be logged; beyond that the oldest are dropped
 DRAIN_S = 3.0                   # at stop: log what is still queued for at most this long
 PAIR_FRAMES_KEPT = 32           # cues / images waiting for their partner, per camera
@@ -63,21 +56,14 @@ BONE_CHAINS = (("pelvis", "torso", "neck", "head"),
                ("pelvis", "hip_r", "knee_r", "ankle_r", "foot_r"))
 
 
-def parse_rerun(spec: str) -> tuple[str, list[str]]:
-    """``"save:x.rrd"`` -> ``("save", ["x.rrd"])``; ``"serve:9090:9876"`` -> ports."""
-    mode, _, rest = str(spec).partition(":")
-    if mode == "save" and rest:
-        return mode, [rest]
-    if mode == "serve":
-        ports = [p for p in rest.split(":") if p] if rest else []
-        if len(ports) > 2 or not all(p.isdigit() for p in ports):
-            raise ValueError(f"--rerun {spec!r}: expected serve[:WEB_PORT[:GRPC_PORT]]")
-        return mode, ports
-    if mode == "spawn" and not rest:
-        return mode, []
-    if mode == "connect" and rest:
-        return mode, [rest]
-    raise ValueError(f"--rerun {spec!r}: expected save:FILE.rrd | serve[:WEB[:GRPC]] | spawn | connect:URL")
+@dataclass(frozen=True)
+class ViewerSettings(NodeSettings):
+    """rerun : save:FILE.rrd | serve[:WEB_PORT[:GRPC_PORT]] | spawn | connect:URL (required);
+    preview_every : the workers send an image every N frames (0 = unknown: every frame's cues)."""
+
+    node: str = "viewer"
+    rerun: str = ""
+    preview_every: int = 0
 
 
 def ellipse_points(center: np.ndarray, cov: np.ndarray, sigma: float = ELLIPSE_SIGMA,
@@ -219,49 +205,6 @@ class RerunLogger:
         self.rr.log("viewer", self.rr.TextLog(text))
 
 
-def start_sink(spec: str, app_id: str = "mocap_rt") -> subprocess.Popen | None:
-    """Initialise Rerun for ``--rerun spec``; returns the web-viewer process for ``serve``."""
-    import rerun as rr
-
-    mode, args = parse_rerun(spec)
-    rr.init(app_id, spawn=False)
-    if mode == "save":
-        Path(args[0]).parent.mkdir(parents=True, exist_ok=True)
-        rr.save(args[0])
-        return None
-    if mode == "connect":
-        rr.connect_grpc(args[0])
-        return None
-    if mode == "spawn":
-        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-            raise ValueError("--rerun spawn needs a display (DISPLAY/WAYLAND_DISPLAY unset); "
-                             "use --rerun save:FILE.rrd or serve")
-        rr.spawn()
-        return None
-    web = int(args[0]) if args else DEFAULT_WEB_PORT
-    grpc = int(args[1]) if len(args) > 1 else DEFAULT_GRPC_PORT
-    # a browser that connects late gets the newest data first and at most SERVE_MEMORY_LIMIT of
-    # history (the whole run, replayed into a software-rendered page, kept it at "No data")
-    rr.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc, server_memory_limit=SERVE_MEMORY_LIMIT,
-                                   newest_first=True))
-    url = f"rerun+http://127.0.0.1:{grpc}/proxy"
-    exe = shutil.which("rerun", path=str(Path(sys.executable).parent)) or shutil.which("rerun")
-    if exe is None:
-        raise FileNotFoundError("the 'rerun' executable (from rerun-sdk) is needed to host the web viewer")
-    # dies with the viewer, whatever ends it (the launcher also kills the viewer's process group)
-    proc = subprocess.Popen([exe, "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web), url],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
-                            preexec_fn=die_with_parent)
-    log.info("viewer: open %s", web_viewer_url(web, grpc))
-    return proc
-
-
-def web_viewer_url(web_port: int, grpc_port: int) -> str:
-    from urllib.parse import quote
-
-    return f"http://127.0.0.1:{web_port}/?url={quote(f'rerun+http://127.0.0.1:{grpc_port}/proxy', safe='')}"
-
-
 class Inbox:
     """Items waiting to be logged, filled by Zenoh's threads: at most ``maxlen``; when full,
     ``put`` drops the oldest for the newest (and says so)."""
@@ -367,10 +310,8 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime, preview_every: int = 0
                 enqueue(item)
         return cb
 
-    subs = [session.declare_subscriber(keys.trigger, handler(Trigger)),
-            session.declare_subscriber(keys.pose, handler(Pose)),
-            session.declare_subscriber(keys.cues(), handler(Cues)),
-            session.declare_subscriber(keys.preview(), handler(Preview))]
+    for key, cls in ((keys.trigger, Trigger), (keys.pose, Pose), (keys.cues(), Cues), (keys.preview(), Preview)):
+        rt.subscribe(key, handler(cls))
     rt.publish_status("running", force=True)
     report = ViewerReport(logger, rt)
     pairs = SameFrame()
@@ -408,42 +349,40 @@ def run_viewer(session, keys: Keys, rig, rt: NodeRuntime, preview_every: int = 0
             rt.publish_status()
         report.write(final=True)
     finally:
-        for s in subs:
-            s.undeclare()
+        rt.unsubscribe()
         try:
             rr.get_global_data_recording().flush()
         except Exception as exc:
             log.warning("viewer: flush failed: %s", exc)
 
 
-def build_parser():
-    """The node's command line (also checked against the deploy units in the tests)."""
-    p = base_parser(__doc__.splitlines()[0], "viewer")
-    p.add_argument("--rerun", required=True, help="save:FILE.rrd | serve[:WEB_PORT[:GRPC_PORT]] | spawn | connect:URL")
-    p.add_argument("--preview-every", type=int, default=0,
+def _flags(p) -> None:
+    p.add_argument("--rerun", help="save:FILE.rrd | serve[:WEB_PORT[:GRPC_PORT]] | spawn | connect:URL (required)")
+    p.add_argument("--preview-every", type=int,
                    help="the workers send an image every N frames: only those frames' cues are drawn "
                         "(0 = unknown: every frame's)")
-    return p
+
+
+def build_parser():
+    """The node's command line (also checked against the deploy units in the tests)."""
+    return settings_parser(ViewerSettings, __doc__.splitlines()[0], _flags)
 
 
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
-    args = p.parse_args(argv)
-    setup_logging(args.log_level)
-    parse_rerun(args.rerun)
-    rig = load_rig(args)
-    web = start_sink(args.rerun)
-    try:
-        with node_session(args, "viewer") as rt:
-            rt.publish_status("ready", force=True)
-            run_viewer(rt.session, rt.keys, rig, rt, args.preview_every)
-            rt.publish_status("stopping", force=True)
-    finally:
-        # no rr.disconnect(): it can block ~10 s on a served stream; run_viewer flushed
-        if web is not None:
-            web.terminate()
-            web.wait(timeout=5)
-    return 0
+    s = parse_settings(p, ViewerSettings, argv)
+    if not s.rerun:
+        p.error("--rerun is required (flag or --config)")
+    parse_rerun(s.rerun)
+
+    def prepare(rig, stack) -> None:
+        web = start_sink(s.rerun)
+        if web is not None:        # no rr.disconnect(): it can block ~10 s on a served stream; run_viewer flushed
+            stack.callback(web.wait, timeout=5)
+            stack.callback(web.terminate)
+
+    return run_node("viewer", s, lambda rt, rig, _: run_viewer(rt.session, rt.keys, rig, rt, s.preview_every),
+                    prepare=prepare)
 
 
 if __name__ == "__main__":
