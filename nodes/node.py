@@ -13,6 +13,7 @@ import argparse
 import dataclasses
 import logging
 import re
+import sys
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,8 +140,9 @@ def run_node(role: str, settings: NodeSettings, serve: Callable, *, prepare: Cal
              setup: Callable | None = None, node: str | None = None) -> int:
     """Run one node process to its end; returns the exit code.
 
-    ``prepare(rig, stack) -> state``: checks and resources before joining the service (a bad
-    input fails here, before any message; ``stack`` closes what it opens). In the session
+    ``prepare(rig, stack) -> state``: checks and resources before joining the service (``stack``
+    closes what it opens). A bad rig or input (``ValueError``/``OSError`` while reading the rig
+    or in ``prepare``) is one ``ROLE: error: ...`` line and exit code 2, before any message. In the session
     (``nodes.runtime.node_session``: status "starting", kernels loaded): ``setup(rt, rig,
     state) -> state`` (warm-up), then the real-time priority, status "ready", ``serve(rt, rig, state)``
     until ``rt.stop``, status "stopping". ``node``: the status name (default ``settings.node``).
@@ -149,10 +151,14 @@ def run_node(role: str, settings: NodeSettings, serve: Callable, *, prepare: Cal
     from nodes.runtime import node_session
 
     setup_logging(settings.log_level)
-    rig = read_rig(settings.rig)
-    rig_name = settings.rig_name or rig_name_for(settings.rig, rig)
     with ExitStack() as stack:
-        state = prepare(rig, stack) if prepare is not None else None
+        try:
+            rig = read_rig(settings.rig)
+            state = prepare(rig, stack) if prepare is not None else None
+        except (ValueError, OSError) as exc:       # a bad input: one line naming it, before joining
+            print(f"{role}: error: {exc}", file=sys.stderr)
+            return 2
+        rig_name = settings.rig_name or rig_name_for(settings.rig, rig)
         with node_session(settings, rig_name, role, node or settings.node) as rt:
             if setup is not None:
                 state = setup(rt, rig, state)

@@ -27,6 +27,8 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from nodes.node import DEFAULT_FPS
+
 log = logging.getLogger(__name__)
 
 LIVE_BACKGROUND_FRAMES = 10     # empty-scene frames a live source captures at start
@@ -257,7 +259,7 @@ class V4L2Device:
         self._cap.release()
 
 
-def open_source(spec: str, camera, fps: float = 30.0, backgrounds_from: str | None = None):
+def open_source(spec: str, camera, fps: float = DEFAULT_FPS, backgrounds_from: str | None = None):
     """Build the source for ``--source spec`` and a rig ``Camera`` (``backgrounds_from``: a
     recording whose stored backgrounds a ``gst:`` source uses instead of capturing them)."""
     kind, value = parse_source(spec)
