@@ -27,43 +27,51 @@ def _speed(text: str) -> float | None:
     return v
 
 
+# flags of ``mocap-rt run`` whose ``RunConfig`` field has another name or sense
+FLAG_FIELDS = {"rig": ("rig_path", lambda v: v), "duration": ("duration_s", lambda v: v),
+               "no_restart": ("restart", lambda v: not v), "quiet": ("status_line", lambda v: not v)}
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "run", help="run the real-time capture service (sync, camera workers, fusion, recorder, viewer)",
         description="Start every node of the service as its own process on this host (Zenoh peers on "
-                    "127.0.0.1), show a live status line, stop on Ctrl-C or after --duration.")
-    p.add_argument("--rig", type=Path, default=None,
-                   help="rig TOML (default for replay/fake sources: REC_DIR/rig.toml)")
-    p.add_argument("--source", required=True,
+                    "127.0.0.1), show a live status line, stop on Ctrl-C or after --duration.",
+        argument_default=argparse.SUPPRESS)      # a flag not given leaves the RunConfig (or --config) value
+    p.add_argument("--config", type=Path, default=None, metavar="RUN.toml",
+                   help="the run's settings as TOML (the fields of nodes.run_config.RunConfig: rig_path, source, "
+                        "speed, duration_s, record, ...); flags given as well win")
+    p.add_argument("--rig", type=Path, help="rig TOML (default for replay/fake sources: REC_DIR/rig.toml)")
+    p.add_argument("--source",
                    help="replay:REC_DIR | v4l2:/dev/video0,/dev/video2,... (one per camera) | fake:REC_DIR | "
-                        "gst:'PIPELINE' ({camera}/{index} filled in per camera; see docs/sources.md)")
-    p.add_argument("--backgrounds-from", type=Path, default=None, metavar="REC_DIR",
+                        "gst:'PIPELINE' ({camera}/{index} filled in per camera; see docs/sources.md); required, "
+                        "here or in --config")
+    p.add_argument("--backgrounds-from", type=Path, metavar="REC_DIR",
                    help="gst: sources: the empty-scene backgrounds (and source kind) of this recording "
                         "instead of capturing them at start")
-    p.add_argument("--speed", type=_speed, default=1.0, help="replay speed factor or 'max' (default 1.0)")
-    p.add_argument("--duration", type=float, default=None,
-                   help="seconds to run (default: one pass of a replay; live: until Ctrl-C)")
-    p.add_argument("--rerun", default=None, help="viewer: save:FILE.rrd | serve[:PORT] | spawn")
-    p.add_argument("--record", type=Path, default=None, help="record poses (BVH, NPZ) and live streams here")
-    p.add_argument("--stats", type=Path, default=None, help="write run statistics JSON here")
-    p.add_argument("--stream", default=None, metavar="vmc[:HOST[:PORT]]",
+    p.add_argument("--speed", type=_speed, help="replay speed factor or 'max' (default 1.0)")
+    p.add_argument("--duration", type=float, help="seconds to run (default: one pass of a replay; live: until Ctrl-C)")
+    p.add_argument("--rerun", help="viewer: save:FILE.rrd | serve[:PORT] | spawn")
+    p.add_argument("--record", type=Path, help="record poses (BVH, NPZ) and live streams here")
+    p.add_argument("--stats", type=Path, help="write run statistics JSON here")
+    p.add_argument("--stream", metavar="vmc[:HOST[:PORT]]",
                    help="send every pose as a VMC protocol bundle (OSC/UDP; default 127.0.0.1:39539) to "
                         "VSeeFace, EVMC4U, Warudo ...; see docs/streaming.md")
     p.add_argument("--allow-remote-stream", action="store_true",
                    help="let --stream send to a host other than this one (plain UDP, unauthenticated)")
-    p.add_argument("--deadline-frac", type=float, default=DEFAULT_DEADLINE_FRAC,
-                   help="fusion waits for late cameras at most this fraction of a frame period (default %(default)s)")
-    p.add_argument("--bones", type=Path, default=None, metavar="TOML",
+    p.add_argument("--deadline-frac", type=float,
+                   help=f"fusion waits for late cameras at most this fraction of a frame period "
+                        f"(default {DEFAULT_DEADLINE_FRAC})")
+    p.add_argument("--bones", type=Path, metavar="TOML",
                    help="the subject's bone lengths ([bones] table, e.g. bones.toml of mocap-rt process); "
                         "default: estimated from the first seconds of the capture")
-    p.add_argument("--preview-every", type=int, default=None,
+    p.add_argument("--preview-every", type=int,
                    help=f"camera image to the viewer every N frames (default {DEFAULT_PREVIEW_EVERY} with --rerun)")
     p.add_argument("--no-restart", action="store_true", help="do not restart nodes that die")
-    p.add_argument("--log-dir", type=Path, default=None, help="node logs (default: a temp dir)")
+    p.add_argument("--log-dir", type=Path, help="node logs (default: a temp dir)")
     p.add_argument("--quiet", action="store_true", help="no live status line")
-    p.add_argument("--nice", type=int, default=0,
-                   help="niceness of sync, workers and fusion, e.g. -10 (needs root or CAP_SYS_NICE)")
-    p.add_argument("--rt-priority", type=int, default=None,
+    p.add_argument("--nice", type=int, help="niceness of sync, workers and fusion, e.g. -10 (needs root or CAP_SYS_NICE)")
+    p.add_argument("--rt-priority", type=int,
                    help="SCHED_FIFO priority of the workers once warmed up (fusion +1, sync +2); 0 = off; "
                         "default: 10 at a triggered rate, off with --speed max (needs root or CAP_SYS_NICE)")
     p.set_defaults(func=run)
@@ -75,19 +83,36 @@ def register(subparsers) -> None:
     n.set_defaults(func=run_node)
 
 
-def run(args: argparse.Namespace) -> int:
-    from nodes.launcher import Launcher, RunConfig, _json_safe
-    from nodes.preflight import check_run, rig_path_for
+def run_config(args: argparse.Namespace):
+    """The ``RunConfig`` of ``mocap-rt run``: its defaults, then ``--config FILE``, then the flags
+    given; ``rig_path`` resolved (``nodes.preflight.rig_path_for``)."""
+    from dataclasses import fields, replace
 
-    cfg = RunConfig(rig_path=rig_path_for(args.source, args.rig), source=args.source, speed=args.speed,
-                    duration_s=args.duration, rerun=args.rerun, record=args.record, stats=args.stats,
-                    deadline_frac=args.deadline_frac, bones=args.bones, preview_every=args.preview_every,
-                    restart=not args.no_restart, log_dir=args.log_dir, status_line=not args.quiet, nice=args.nice,
-                    rt_priority=args.rt_priority, stream=args.stream, allow_remote_stream=args.allow_remote_stream,
-                    backgrounds_from=args.backgrounds_from)
+    from mocap_rt.config import load_dataclass
+    from nodes.preflight import rig_path_for
+    from nodes.run_config import RunConfig
+
+    cfg = load_dataclass(RunConfig, args.config) if args.config is not None else RunConfig()
+    names = {f.name for f in fields(RunConfig)}
+    given = {}
+    for dest, value in vars(args).items():
+        field_name, convert = FLAG_FIELDS.get(dest, (dest, lambda v: v))
+        if field_name in names:
+            given[field_name] = convert(value)
+    cfg = replace(cfg, **given)
+    if not cfg.source:
+        raise ValueError("--source is required (or source = ... in --config)")
+    return replace(cfg, rig_path=rig_path_for(cfg.source, cfg.rig_path))
+
+
+def run(args: argparse.Namespace) -> int:
+    from nodes.launcher import Launcher, _json_safe
+    from nodes.preflight import check_run
+
+    cfg = run_config(args)
     check_run(cfg)               # every input checked before a node starts: one line, no node traceback
     launcher = Launcher(cfg)
-    notice = record_notice(args.record) if args.record is not None else None
+    notice = record_notice(cfg.record) if cfg.record is not None else None
     if notice:
         print(notice, file=sys.stderr)
     print(f"mocap-rt run: rig {launcher.rig_name}, {len(launcher.rig)} cameras, trigger "

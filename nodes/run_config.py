@@ -11,10 +11,12 @@ from mocap_rt.fusion.gather import DEFAULT_DEADLINE_FRAC
 
 @dataclass(frozen=True)
 class RunConfig:
-    """Everything ``mocap-rt run`` was asked to do (see ``nodes/cli.py`` for the flags)."""
+    """Everything ``mocap-rt run`` was asked to do (see ``nodes/cli.py`` for the flags; ``mocap-rt
+    run --config FILE`` reads these fields from TOML). ``rig_path`` None: the recording's
+    ``rig.toml`` (replay/fake sources, ``nodes.preflight.rig_path_for``)."""
 
-    rig_path: Path
-    source: str
+    rig_path: Path | None = None
+    source: str = ""
     speed: float | None = 1.0          # None = as fast as possible (free-running sync)
     duration_s: float | None = None
     rerun: str | None = None
@@ -36,6 +38,11 @@ class RunConfig:
     stream: str | None = None          # pose stream, e.g. "vmc:127.0.0.1:39539" (nodes/streamer.py)
     allow_remote_stream: bool = False  # let the stream leave this host
     backgrounds_from: Path | None = None   # gst: sources: a recording's stored backgrounds
+
+    def __post_init__(self) -> None:
+        for name in ("rig_path", "record", "stats", "bones", "log_dir", "backgrounds_from"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, Path(getattr(self, name)))
 
 
 @dataclass

@@ -64,7 +64,7 @@ def test_with_the_service_run_is_the_service():
         except SystemExit as e:
             sys.exit(e.code)
     """, hide=())
-    assert out.returncode == 0 and "--source" in out.stdout, out.stderr
+    assert out.returncode == 0 and "--source" in out.stdout and "--config" in out.stdout, out.stderr
 
 
 def test_pyproject_keeps_the_service_packages_in_the_service_extra():

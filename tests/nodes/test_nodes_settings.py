@@ -125,3 +125,28 @@ def test_a_node_given_a_missing_rig_says_so_in_one_line(tmp_path):
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [f"fusion: error: {tmp_path / 'nope.toml'}: no such rig file"]
+
+
+def test_run_takes_its_settings_from_a_file_and_flags_win(tmp_path, capsys):
+    from mocap_rt.cli import build_parser, main
+    from nodes.cli import run_config
+    from nodes.run_config import RunConfig
+
+    rec = tmp_path / "rec"
+    cfg = tmp_path / "run.toml"
+    cfg.write_text(f"source = 'replay:{rec}'\nspeed = 2.0\nduration_s = 5.0\nrecord = '{tmp_path / 'out'}'\n"
+                   "deadline_frac = 0.6\nrestart = false\n[extra_node_args]\nfusion = ['--log-level', 'DEBUG']\n")
+    args = build_parser().parse_args(["run", "--config", str(cfg), "--speed", "max", "--quiet"])
+    assert run_config(args) == RunConfig(rig_path=rec / "rig.toml", source=f"replay:{rec}", speed=None, duration_s=5.0,
+                                         record=tmp_path / "out", deadline_frac=0.6, restart=False,
+                                         status_line=False, extra_node_args={"fusion": ["--log-level", "DEBUG"]})
+    # without a file: the flags given, RunConfig's defaults for the rest
+    args = build_parser().parse_args(["run", "--source", f"replay:{rec}", "--rig", str(tmp_path / "r.toml")])
+    assert run_config(args) == RunConfig(rig_path=tmp_path / "r.toml", source=f"replay:{rec}")
+    # a bad file is one line naming the file and the key
+    (tmp_path / "bad.toml").write_text(f"source = 'replay:{rec}'\nspeeed = 2.0\n")
+    assert main(["run", "--config", str(tmp_path / "bad.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("mocap-rt run: error: ") and "bad.toml" in err and "speeed" in err, err
+    assert main(["run", "--speed", "2"]) == 2
+    assert "--source is required" in capsys.readouterr().err
