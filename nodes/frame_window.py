@@ -36,9 +36,11 @@ from collections import OrderedDict
 log = logging.getLogger(__name__)
 
 WINDOW_BEHIND = 32             # frames: older cues / poses / predictions are stale
-RECORD_BEHIND = 900            # frames (30 s at 30 fps): the recorder and the monitor keep every pose of a
-                               # triggered frame even when a busy host delays them (their Zenoh callbacks
-                               # can see a pose after many newer triggers); still bounded
+RECORD_BEHIND = 900            # frames (30 s at 30 fps) and
+RECORD_AHEAD = 150             # frames (5 s): the recorder and the monitor keep every pose of a triggered
+                               # frame even when a busy host delays their Zenoh callbacks (a pose seen after
+                               # many newer triggers, or long before its own); a pose held for a trigger
+                               # still needs that trigger's stamp, and HELD_MAX bounds what is held
 WINDOW_AHEAD = 8               # frames after the newest trigger held (cues, poses) or accepted (predictions)
 TRIGGER_SLACK_FRAMES = 2       # frame step vs time step / period of consecutive triggers
 REANCHOR_TRIGGERS = 5          # consecutive refused but mutually consistent triggers that re-anchor

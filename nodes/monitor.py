@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nodes.frame_window import RECORD_BEHIND, FrameWindow
+from nodes.frame_window import RECORD_AHEAD, RECORD_BEHIND, FrameWindow
 from nodes.messages import Decoder, Keys, Pose, Status, Trigger
 
 ALIVE_S = 2.0              # a node whose status is older than this is not alive
@@ -53,7 +53,7 @@ class ServiceMonitor:
     def __init__(self, session, keys: Keys) -> None:
         self.keys = keys
         self.decoder = Decoder("monitor")
-        self.window = FrameWindow(keys.rig, "monitor", behind=RECORD_BEHIND)   # poses of triggered frames, even late
+        self.window = FrameWindow(keys.rig, "monitor", RECORD_BEHIND, RECORD_AHEAD)   # poses of triggered frames, even late
         self._lock = threading.Lock()
         self.triggers: dict[int, int] = {}          # frame -> trigger mono ns
         self.poses: deque[PoseEvent] = deque(maxlen=POSE_HISTORY)

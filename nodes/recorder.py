@@ -38,7 +38,7 @@ from mocap_rt.body.bvh_export import bvh_skeleton_of
 from mocap_rt.body.skeleton import BoneLengths, write_bone_lengths
 from mocap_rt.io.bvh_writer import BvhStreamWriter
 from mocap_rt.io.files import atomic_write
-from nodes.frame_window import RECORD_BEHIND, FrameWindow
+from nodes.frame_window import RECORD_AHEAD, RECORD_BEHIND, FrameWindow
 from nodes.messages import Background, Frame, Keys, Pose, Trigger
 from nodes.node import NodeSettings, parse_settings, rig_fps, run_node, settings_parser
 from nodes.runtime import NodeRuntime
@@ -265,7 +265,7 @@ def run_recorder(session, keys: Keys, rig, out_dir: Path, fps: float, raw: bool,
     stream = RawStream(stream_path, rig, fps) if raw else None
     log.info("recorder: writing %s, %s%s", npz_path, bvh_path, f", {stream_path}" if raw else "")
     inbox: queue.SimpleQueue = queue.SimpleQueue()
-    window = FrameWindow(keys.rig, rt.node, behind=RECORD_BEHIND)   # every pose of a triggered frame, even late
+    window = FrameWindow(keys.rig, rt.node, RECORD_BEHIND, RECORD_AHEAD)   # every pose of a triggered frame, even late
 
     def subscriber(msg_type):
         def on_sample(sample) -> None:

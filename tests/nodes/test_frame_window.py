@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mocap_rt.cues import N_CUES, CameraCues, CuePrediction
-from nodes.frame_window import (RECORD_BEHIND, REANCHOR_TRIGGERS, WINDOW_AHEAD, WINDOW_BEHIND, FrameWindow,
+from nodes.frame_window import (RECORD_AHEAD, RECORD_BEHIND, REANCHOR_TRIGGERS, WINDOW_AHEAD, WINDOW_BEHIND, FrameWindow,
                                 window_drops)
 from nodes.messages import Cues, Decoder, Pose, Prediction, Trigger
 
@@ -74,10 +74,10 @@ def test_the_two_attacks_of_issue_14_are_dropped_and_counted():
 
 
 def test_the_recorder_window_keeps_a_pose_delayed_by_a_busy_host():
-    """A starved recorder / monitor sees a pose after 100 newer triggers: live consumers drop it as
-    stale, the recorder keeps it (it names a triggered frame and carries its stamp); a pose older
+    """A starved recorder / monitor sees a pose after 100 newer triggers, or 100 frames before its
+    trigger: live consumers drop it (stale, future), the recorder keeps it (it names a triggered frame and carries its stamp); a pose older
     than the recorder's own bound, or of a frame never triggered, is still dropped."""
-    live, rec = FrameWindow(RIG), FrameWindow(RIG, behind=RECORD_BEHIND)
+    live, rec = FrameWindow(RIG), FrameWindow(RIG, behind=RECORD_BEHIND, ahead=RECORD_AHEAD)
     for f in range(RECORD_BEHIND + 150):
         live.accept(trig(f))
         rec.accept(trig(f))
@@ -86,6 +86,15 @@ def test_the_recorder_window_keeps_a_pose_delayed_by_a_busy_host():
     assert rec.accept(pose(late, trig(late).t_mono_ns)) != []
     assert rec.accept(pose(10, trig(10).t_mono_ns)) == [] and rec.drops["stale"] == 1
     assert rec.accept(pose(late, trig(late).t_mono_ns + 1)) == [] and rec.drops["stamp"] == 1
+    # ... and a pose seen 100 frames before its trigger: held, recorded when the trigger comes
+    now = rec.current
+    early = pose(now + 100, trig(now + 100).t_mono_ns)
+    assert live.accept(early) == [] and live.drops["future"] == 1
+    assert rec.accept(early) == [] and rec.drops["future"] == 0
+    for f in range(now + 1, now + 100):
+        assert rec.accept(trig(f)) == [trig(f)]
+    assert rec.accept(trig(now + 100)) == [trig(now + 100), early]
+    assert rec.accept(pose(rec.current + RECORD_AHEAD + 1, 0)) == [] and rec.drops["future"] == 1
 
 
 def test_each_reason():
