@@ -256,6 +256,10 @@ def ensure_warm(motion: Path | None = None, force: bool = False, log=_say, rec: 
         scene = f"recording {rec}" if rec else (f"rendering {motion}" if motion else "synthetic frames")
         log(f"warm-up: building the numba kernel cache once, in one process ({scene}) ...")
         dispatchers = cached_dispatchers()
+        held = [d.__name__ for d in dispatchers if d.signatures]
+        if held:       # numba never writes a kernel it already holds: the cache would stay empty
+            raise RuntimeError(f"warm-up must run in a fresh process (`python -m mocap_rt.warmup`): "
+                               f"{len(held)} kernels are already compiled in this one ({', '.join(held[:3])} ...)")
         clear_cache(dispatchers)               # callers' caches may hold a changed callee
         with tempfile.TemporaryDirectory(prefix="mocap-rt-warmup-") as tmp:
             exercise(motion, Path(tmp), rec)

@@ -39,3 +39,24 @@ def test_the_package_kernel_sources_are_the_numba_modules():
     names = {p.name for p in warmup.kernel_sources()}
     assert {"blob_kernels.py", "ik_kernels.py", "render_kernels.py", "warmup.py"} <= names
     assert "recording.py" not in names                            # io: no kernels
+
+
+def test_a_warm_up_in_a_process_that_already_compiled_kernels_refuses(tmp_path):
+    """numba never writes a kernel it already holds, so a warm-up after the kernels ran in the
+    same process would stamp a nearly empty cache warm (every node then compiles at start): it
+    refuses, names the way to run it, and leaves the cache and stamp alone."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from mocap_rt.geometry.lens import undistort_point\n"
+            "undistort_point(1.0, 2.0, np.eye(3), np.zeros(8))\n"
+            "from mocap_rt import warmup\n"
+            "warmup.ensure_warm(force=True)\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0
+    assert "warm-up must run in a fresh process (`python -m mocap_rt.warmup`)" in r.stderr
+    assert "undistort_point" in r.stderr
+    assert not (tmp_path / "cache" / warmup.STAMP_NAME).exists()
