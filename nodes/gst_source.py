@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nodes.sources import GRAB_TIMEOUT_S, LIVE_BACKGROUND_FRAMES, Grab, LiveSource
+from nodes.live import GRAB_TIMEOUT_S, LIVE_BACKGROUND_FRAMES, Grab, LiveSource
 
 log = logging.getLogger(__name__)
 

@@ -53,7 +53,8 @@ class ServiceMonitor:
     def __init__(self, session, keys: Keys) -> None:
         self.keys = keys
         self.decoder = Decoder("monitor")
-        self.window = FrameWindow(keys.rig, "monitor", RECORD_BEHIND, RECORD_AHEAD)   # poses of triggered frames, even late
+        # poses of triggered frames, even late ones
+        self.window = FrameWindow(keys.rig, "monitor", RECORD_BEHIND, RECORD_AHEAD)
         self._lock = threading.Lock()
         self.triggers: dict[int, int] = {}          # frame -> trigger mono ns
         self.poses: deque[PoseEvent] = deque(maxlen=POSE_HISTORY)

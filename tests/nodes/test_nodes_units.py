@@ -17,7 +17,8 @@ from nodes.messages import Cues, Keys, Pose, Trigger
 from nodes.monitor import percentiles
 from nodes.recorder import PoseFiles, PoseLog, output_paths
 from nodes.runtime import NodeRuntime, RateMeter
-from nodes.sources import FakeDevice, Grabber, LiveSource, parse_source
+from nodes.live import Grabber, LiveSource
+from nodes.sources import FakeDevice, parse_source
 from nodes.sync import Schedule, run_sync
 from nodes.viewer import ellipse_points, parse_rerun, skeleton_strips
 
