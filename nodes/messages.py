@@ -48,6 +48,14 @@ N_JOINTS = len(JOINT_NAMES)
 MAX_BVH_CHANNELS = 4096
 
 
+def _sub_key(kind: str):
+    """A ``Keys`` method: ``<root>/<kind>/<name>`` for one camera or node, ``"*"`` for all."""
+    def key(self, name: str = "*") -> str:
+        return f"{self.root}/{kind}/{name}"
+    key.__name__ = key.__qualname__ = kind
+    return key
+
+
 class Keys:
     """All key expressions of one rig, in one place."""
 
@@ -63,23 +71,13 @@ class Keys:
     def pose(self) -> str:
         return f"{self.root}/pose"
 
-    def cues(self, camera: str = "*") -> str:
-        return f"{self.root}/cues/{camera}"
-
-    def prediction(self, camera: str = "*") -> str:
-        return f"{self.root}/prediction/{camera}"
-
-    def status(self, node: str = "*") -> str:
-        return f"{self.root}/status/{node}"
-
-    def preview(self, camera: str = "*") -> str:
-        return f"{self.root}/preview/{camera}"
-
-    def frame(self, camera: str = "*") -> str:
-        return f"{self.root}/frame/{camera}"
-
-    def background(self, camera: str = "*") -> str:
-        return f"{self.root}/background/{camera}"
+    # per camera (per node for ``status``); ``"*"``: all of them
+    cues = _sub_key("cues")
+    prediction = _sub_key("prediction")
+    status = _sub_key("status")
+    preview = _sub_key("preview")
+    frame = _sub_key("frame")
+    background = _sub_key("background")
 
 
 # ---------------------------------------------------------------- messages
