@@ -67,8 +67,7 @@ class IdentityConfig:
                                     # the pair it adds is undecided and keeps its measured labels
     acquire_frames: int = 15        # the first frames of a track ...
     acquire_factor: float = 0.5     # ... switch on this fraction of the evidence
-    acquire_whole_circle: bool = False  # ... and score every hypothesis at its best heading on the whole circle
-                                    # (off: on, the closed loop of a modern dance lost its hands, 2D p90 59 px)
+    acquire_whole_circle: bool = True  # ... and score every hypothesis at its best heading on the whole circle
 
 
 @dataclass
