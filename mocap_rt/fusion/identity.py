@@ -11,18 +11,10 @@ So every frame the current labelling and three alternatives are solved and score
 (``score_hypotheses``: the pan searched within +-``pan_search_deg`` of the previous
 heading, turned by 180 deg for the mirror, default limb swivels; ``BodyFitter.fit`` cost = limit violation +
 silhouette chamfer + pan change). Each alternative's evidence is a leaky sum of how much
-cheaper it is than the current one, the gains of one frame scaled down to at most
-``gain_cap`` (one frame cannot switch alone however large its gain; the alternatives keep
-their order); while acquiring it is floored at 0 (as in Page's CUSUM change detector: the
-first frames, fitted on labels nobody checked yet, leave no debt that delays the right
-switch), afterwards at ``evidence_floor`` (``decide``); the labels switch when the evidence
+cheaper it is than the current one (``decide``); the labels switch when the evidence
 passes ``switch_evidence`` and the alternative also wins this frame by ``frame_margin``
 plus ``frame_margin_frac`` of the current cost (hysteresis: one odd frame never
-switches, and a frame that no hypothesis fits well decides nothing). The mirror exchanges
-both pairs, so it is taken only when it beats each single-pair swap by ``pair_margin``
-(in the same leaky sum of the gains, not scaled):
-standing with the feet together, the feet labels barely change the fit, and a cold start
-whose hands are wrong must not exchange its right feet with them. During the first ``acquire_frames`` of a
+switches, and a frame that no hypothesis fits well decides nothing). During the first ``acquire_frames`` of a
 track the threshold is ``acquire_factor`` times lower, so a cold start on any motion
 takes the right identity within a few frames, without a calibration pose.
 """
@@ -41,8 +33,6 @@ from mocap_rt.names import C_HEAD, C_TORSO, LR_PAIRS
 ALTERNATIVES = ("hands", "feet", "mirror")
 HANDS, FEET = LR_PAIRS
 ALTERNATIVE_PAIRS = ((HANDS,), (FEET,), (HANDS, FEET))
-_MIRROR = ALTERNATIVES.index("mirror")
-_SINGLE = tuple(k for k in range(len(ALTERNATIVES)) if k != _MIRROR)
 # the swivel slots (arm_l, arm_r, leg_l, leg_r) each alternative exchanges
 _SWIVEL_ORDER = (np.array([1, 0, 2, 3]), np.array([0, 1, 3, 2]), np.array([1, 0, 3, 2]))
 
@@ -56,18 +46,11 @@ class IdentityConfig:
     pan_refine: int = 1             # ... then one halving of the step around the best
     cold_step_deg: float = 15.0     # without a previous heading: the whole circle in these steps
     decay: float = 0.95             # evidence kept per frame
-    evidence_floor: float = float("-inf")  # after acquiring, the evidence never drops below this
-                                    # (-25 measured worse: the costs favour a wrong pair for many frames
-                                    # at times, e.g. a kick, and the debt of a right past holds it)
     switch_evidence: float = 25.0   # leaky sum of (current - alternative) costs that switches
-    gain_cap: float = 10.0          # one frame adds at most this: one odd frame never switches
     frame_margin: float = 0.0       # ... when the alternative also wins this frame by this
     frame_margin_frac: float = 0.0  # ... plus this fraction of the current cost (a poor fit decides nothing)
-    pair_margin: float = 5.0        # the mirror must out-evidence each single-pair swap by this, or
-                                    # the pair it adds is undecided and keeps its measured labels
     acquire_frames: int = 15        # the first frames of a track ...
     acquire_factor: float = 0.5     # ... switch on this fraction of the evidence
-    acquire_whole_circle: bool = True  # ... and score every hypothesis at its best heading on the whole circle
 
 
 @dataclass
@@ -75,14 +58,12 @@ class IdentityState:
     """Evidence (3,) per alternative (ALTERNATIVES order), frames seen, switches made."""
 
     evidence: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES)))
-    raw: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES)))   # the same, gains not scaled
     frames: int = 0
     switches: int = 0
     last_costs: np.ndarray = field(default_factory=lambda: np.full(1 + len(ALTERNATIVES), np.nan))
 
     def reset(self) -> None:
         self.evidence[:] = 0.0
-        self.raw[:] = 0.0
         self.frames = 0
 
 
@@ -110,16 +91,13 @@ def fill_missing(cues: np.ndarray, axes: np.ndarray, rest_cues: np.ndarray) -> n
 
 
 def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray, prev_axes: np.ndarray | None,
-                     targets: SilhouetteTargets | None, config: IdentityConfig, whole_circle: bool = False
-                     ) -> np.ndarray:
+                     targets: SilhouetteTargets | None, config: IdentityConfig) -> np.ndarray:
     """Costs (4,): the current labelling, then each of ALTERNATIVES, scored alike.
 
     cues (6, 3) metres (head and torso finite; missing hands/feet are filled at rest).
     Each hypothesis searches its pan within +-``pan_search_deg`` of the previous body axes
     ``prev_axes`` (3, 3) (turned by 180 deg for the mirror; the body's up from the cues),
-    or, without previous axes or with ``whole_circle`` (while acquiring: the previous
-    heading was fitted on labels not yet checked), over the whole circle in steps of
-    ``cold_step_deg``.
+    or, without previous axes, over the whole circle in steps of ``cold_step_deg``.
     """
     costs = np.empty(1 + len(ALTERNATIVES))
     up = cues[C_HEAD] - cues[C_TORSO]
@@ -132,7 +110,7 @@ def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray
         r = -right if (h == 1 + ALTERNATIVES.index("mirror") and prev_axes is not None) else right
         axes = np.column_stack([r, np.cross(up, r), up])
         X = fill_missing(X, axes, rest_cues)
-        if prev_axes is None or whole_circle:
+        if prev_axes is None:
             costs[h] = fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=180.0,
                                   pan_step_deg=config.cold_step_deg).cost
         else:
@@ -147,28 +125,13 @@ def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> i
     state.last_costs = costs.copy()
     gain = costs[0] - costs[1:]
     gain = np.where(np.isfinite(gain), gain, 0.0)
+    state.evidence = config.decay * state.evidence + gain
     state.frames += 1
-    acquiring = state.frames <= config.acquire_frames
-    # one frame adds at most gain_cap: the gains scaled down alike, so the alternatives keep their order
-    top = float(gain.max())
-    step = np.where(gain > 0, gain * (config.gain_cap / top if top > config.gain_cap else 1.0), gain)
-    floor = 0.0 if acquiring else config.evidence_floor
-    state.evidence = np.maximum(floor, config.decay * state.evidence + step)
-    state.raw = np.maximum(floor, config.decay * state.raw + gain)
-    need = config.switch_evidence * (config.acquire_factor if acquiring else 1.0)
+    need = config.switch_evidence * (config.acquire_factor if state.frames <= config.acquire_frames else 1.0)
     ok = (state.evidence > need) & (gain > config.frame_margin + config.frame_margin_frac * costs[0])
     if not ok.any():
         return -1
     k = int(np.argmax(np.where(ok, state.evidence, -np.inf)))
-    if k == _MIRROR:
-        # the mirror exchanges both pairs: each must be earned. A single-pair swap nearly as
-        # well supported means the other pair's labels are undecided: keep them as measured
-        near = [j for j in _SINGLE if state.raw[j] > state.raw[k] - config.pair_margin]
-        if near:
-            k = max(near, key=lambda j: state.evidence[j])
-            if not ok[k]:
-                return -1
     state.evidence[:] = 0.0
-    state.raw[:] = 0.0
     state.switches += 1
     return k

@@ -335,8 +335,9 @@ class BodyTracker:
         X = self._reject_duplicates(X, valid, t_s, used)
         valid = np.isfinite(X).all(axis=1)
         X = self._identify(X, valid, t_s, targets)
-        t1, t_prev = time.perf_counter(), t1
-        timings["identify"] = (t1 - t_prev) * 1e3
+        t1b = time.perf_counter()
+        timings["identify"] = (t1b - t1) * 1e3
+        t1 = t1b
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
         valid &= accepted
         filt = np.where(self.filter.alive[:, None], self.filter.pos, np.nan)
@@ -385,8 +386,7 @@ class BodyTracker:
         cues = np.where(valid[:, None], X, pred)
         if not np.isfinite(cues[[C_HEAD, C_TORSO]]).all():
             return X
-        costs = score_hypotheses(self._fitter, cues, self._rest_cues, self._axes, targets, cfg,
-                                 whole_circle=cfg.acquire_whole_circle and self.identity.frames < cfg.acquire_frames)
+        costs = score_hypotheses(self._fitter, cues, self._rest_cues, self._axes, targets, cfg)
         if targets is None or targets.n_views == 0:
             costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
         k = decide(self.identity, costs, cfg)
