@@ -46,9 +46,8 @@ class Launcher:
     def __init__(self, cfg: RunConfig) -> None:
         self.cfg = cfg
         plan = plan_run(cfg)
-        self.plan = plan
         self.rig, self.rig_name, self.keys = plan.rig, plan.rig_name, Keys(plan.rig_name)
-        self.base_fps, self.trigger_fps, self.rt_priority = plan.base_fps, plan.trigger_fps, plan.rt_priority
+        self.trigger_fps, self.rt_priority = plan.trigger_fps, plan.rt_priority
         self.nodes: dict[str, NodeProc] = plan.nodes
         self.monitor_port = plan.monitor_port
         self.log_dir = Path(cfg.log_dir or tempfile.mkdtemp(prefix="mocap-rt-logs-"))

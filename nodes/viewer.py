@@ -373,7 +373,6 @@ def main(argv: list[str] | None = None) -> int:
     s = parse_settings(p, ViewerSettings, argv)
     if not s.rerun:
         p.error("--rerun is required (flag or --config)")
-    parse_rerun(s.rerun)
 
     def prepare(rig, stack) -> None:
         web = start_sink(s.rerun)

@@ -1,6 +1,7 @@
 """The recorder's C3D/TRC exports: what was recorded is in them, written atomically."""
 
 import numpy as np
+from service_helpers import wait_for
 
 from mocap_rt.body.bvh_export import bvh_skeleton_of
 from mocap_rt.body.skeleton import BoneLengths
@@ -46,17 +47,6 @@ def test_pose_files_write_c3d_and_trc_matching_the_npz(tmp_path):
 N_SENT = 60                  # poses sent to the recorder (2 s at 30 fps: two export periods)
 
 
-def _wait(predicate, timeout_s: float) -> bool:
-    import time
-
-    t_end = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > t_end:
-            return False
-        time.sleep(0.05)
-    return True
-
-
 def _exports_hold(out, last_frame: int) -> bool:
     """The C3D and TRC on disk now have a row for every frame up to ``last_frame`` (row = frame
     - first recorded frame); False while a file is missing (they are replaced atomically)."""
@@ -100,7 +90,7 @@ def test_recorder_killed_leaves_readable_c3d_and_trc(tmp_path):
     rng = np.random.default_rng(5)
     sent = {}
     try:
-        assert _wait(lambda: "running" in states, 120), "recorder did not start"
+        assert wait_for(lambda: "running" in states, 120), "recorder did not start"
         period = round(1e9 / 30)
         t0 = time.monotonic_ns()
         for f in range(N_SENT):
@@ -114,7 +104,7 @@ def test_recorder_killed_leaves_readable_c3d_and_trc(tmp_path):
             sent[f] = (time.monotonic(), pose.joints)
         t_sent = time.monotonic()
         out = tmp_path / "out"
-        assert _wait(lambda: _exports_hold(out, N_SENT - 1), 60), "the exports never held every pose sent"
+        assert wait_for(lambda: _exports_hold(out, N_SENT - 1), 60), "the exports never held every pose sent"
         t_kill = time.monotonic()
         print(f"exports complete {t_kill - t_sent:.2f} s after the last pose was sent")
         os.kill(proc.pid, signal.SIGKILL)

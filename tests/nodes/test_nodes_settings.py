@@ -3,10 +3,10 @@
 import dataclasses
 import importlib
 import threading
-import time
 from pathlib import Path
 
 import pytest
+from service_helpers import wait_for
 
 from mocap_rt.config import dataclass_to_dict, dumps_toml
 from nodes.cli import NODE_MODULES
@@ -104,9 +104,7 @@ def test_a_sync_node_runs_from_its_config_file_alone(tmp_path):
         sub = session.declare_subscriber(Keys("cfgtest").trigger, on_trigger)
         proc = subprocess.run([sys.executable, "-m", "nodes.sync", "--config", str(cfg)], capture_output=True,
                               text=True, timeout=120)
-        t_end = time.monotonic() + 5.0
-        while time.monotonic() < t_end and not any(m.frame == 100 + frames - 1 for m in got):
-            time.sleep(0.05)
+        wait_for(lambda: any(m.frame == 100 + frames - 1 for m in got), 5.0)
         sub.undeclare()
     assert proc.returncode == 0, proc.stderr
     # on a loaded host the first triggers can go out before the subscription reached the sync:
