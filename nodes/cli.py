@@ -54,6 +54,9 @@ def register(subparsers) -> None:
     p.add_argument("--rerun", help="viewer: save:FILE.rrd | serve[:PORT] | spawn")
     p.add_argument("--record", type=Path, help="record poses (BVH, NPZ) and live streams here")
     p.add_argument("--stats", type=Path, help="write run statistics JSON here")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --stats or --rerun save: file (otherwise the run refuses to start; "
+                        "--record never overwrites: it writes poses_001.* beside an earlier recording)")
     p.add_argument("--stream", metavar="vmc[:HOST[:PORT]]",
                    help="send every pose as a VMC protocol bundle (OSC/UDP; default 127.0.0.1:39539) to "
                         "VSeeFace, EVMC4U, Warudo ...; see docs/streaming.md")

@@ -34,11 +34,15 @@ def check_options(cfg) -> None:
     """The options (``RunConfig``) the nodes would otherwise reject at start-up."""
     from nodes.rerun_sink import parse_rerun
 
+    outputs = {"--stats": cfg.stats} if cfg.stats is not None else {}
     if cfg.rerun is not None:
-        mode, _ = parse_rerun(cfg.rerun)
+        mode, args = parse_rerun(cfg.rerun)
         if mode == "spawn" and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
             raise ValueError("--rerun spawn needs a display (DISPLAY/WAYLAND_DISPLAY unset); "
                              "use --rerun save:FILE.rrd or serve")
+        if mode == "save":
+            outputs["--rerun save:"] = Path(args[0])
+    check_outputs(cfg, outputs)
     if not (math.isfinite(cfg.deadline_frac) and 0.0 < cfg.deadline_frac <= 1.0):
         raise ValueError(f"--deadline-frac must be in (0, 1], got {cfg.deadline_frac}")
     if cfg.duration_s is not None and not (math.isfinite(cfg.duration_s) and cfg.duration_s > 0):
@@ -61,6 +65,21 @@ def check_options(cfg) -> None:
         from mocap_rt.io.vmc import parse_vmc_target
 
         parse_vmc_target(cfg.stream, cfg.allow_remote_stream)
+
+
+def check_outputs(cfg, outputs: dict[str, Path]) -> None:
+    """The run's output files (flag -> path): never an input, never each other, never an existing
+    file unless ``--overwrite`` (an earlier run's statistics or viewer recording is a result too)."""
+    from mocap_rt.io.files import OutputError, claim_outputs, refuse_input_as_output, same_file
+
+    inputs = [p for p in (cfg.rig_path, cfg.bones) if p is not None]
+    for flag, path in outputs.items():
+        refuse_input_as_output(path, inputs, flag)
+        if path.is_dir():
+            raise OutputError(f"{flag} {path}: is a directory (give a file name)")
+        claim_outputs([path], cfg.overwrite, flag)
+    if len(outputs) == 2 and same_file(*outputs.values()):
+        raise OutputError(f"--stats and --rerun save: name one file ({cfg.stats}); give two")
 
 
 def rig_path_for(source: str, rig: Path | None) -> Path:

@@ -38,6 +38,7 @@ class RunConfig:
     stream: str | None = None          # pose stream, e.g. "vmc:127.0.0.1:39539" (nodes/streamer.py)
     allow_remote_stream: bool = False  # let the stream leave this host
     backgrounds_from: Path | None = None   # gst: sources: a recording's stored backgrounds
+    overwrite: bool = False            # replace an existing --stats / --rerun save: file
 
     def __post_init__(self) -> None:
         for name in ("rig_path", "record", "stats", "bones", "log_dir", "backgrounds_from"):

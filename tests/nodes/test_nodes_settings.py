@@ -148,3 +148,28 @@ def test_run_takes_its_settings_from_a_file_and_flags_win(tmp_path, capsys):
     assert err.startswith("mocap-rt run: error: ") and "bad.toml" in err and "speeed" in err, err
     assert main(["run", "--speed", "2"]) == 2
     assert "--source is required" in capsys.readouterr().err
+
+
+def test_run_never_overwrites_its_outputs_or_inputs(tmp_path, capsys):
+    """``--stats`` and ``--rerun save:`` name new files: an existing one (an earlier run's result)
+    stops the run before any node starts, unless ``--overwrite``; an input never, even then."""
+    from mocap_rt.cli import main
+    from nodes.preflight import check_options
+    from nodes.run_config import RunConfig
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text("not read by check_options\n")
+    old = tmp_path / "stats.json"
+    old.write_text('{"earlier": "run"}')
+    for argv, needle in ((["--stats", str(old)], f"--stats: {old} exists"),
+                         (["--rerun", f"save:{old}"], f"--rerun save:: {old} exists"),
+                         (["--stats", str(rig), "--overwrite"], f"--stats {rig} is the input"),
+                         (["--rerun", f"save:{tmp_path}"], "is a directory"),
+                         (["--stats", str(tmp_path / "a"), "--rerun", f"save:{tmp_path / 'a'}"], "name one file")):
+        assert main(["run", "--source", f"replay:{tmp_path}", "--rig", str(rig), *argv]) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert err.startswith("mocap-rt run: error: ") and needle in err, (argv, err)
+    assert old.read_text() == '{"earlier": "run"}'
+    check_options(RunConfig(rig_path=rig, source=f"replay:{tmp_path}", stats=old, overwrite=True))
+    check_options(RunConfig(rig_path=rig, source=f"replay:{tmp_path}", stats=tmp_path / "new.json",
+                            rerun=f"save:{tmp_path / 'new.rrd'}"))
