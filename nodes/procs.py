@@ -118,6 +118,23 @@ def kill_group(pid: int) -> None:
         pass
 
 
+def stop_all(procs: list[tuple[str, subprocess.Popen]], timeout_s: float) -> None:
+    """SIGTERM to every (name, process), SIGKILL to those still running after ``timeout_s``
+    (one deadline for all), then whatever each left in its process group."""
+    for _, p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    t_end = time.monotonic() + timeout_s
+    for name, p in procs:
+        try:
+            p.wait(timeout=max(0.1, t_end - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            log.warning("%s did not stop in %.0f s: killing it", name, timeout_s)
+            p.kill()
+            p.wait()
+        kill_group(p.pid)
+
+
 def ensure_kernels_warm(log_path: Path, env: dict, rec: Path | None = None, should_stop=lambda: False) -> bool:
     """Build the numba kernel cache in ONE process (``python -m mocap_rt.warmup``) unless its
     stamp says it is warm; the nodes then only load it. Returns False if ``should_stop()``

@@ -12,7 +12,7 @@ import json
 import logging
 import subprocess
 
-from nodes.procs import kill_group, renice
+from nodes.procs import renice, stop_all
 from nodes.run_config import NodeProc
 from nodes.supervisor import STOP_TIMEOUT_S, Supervisor
 
@@ -64,10 +64,4 @@ class HotSpare:
             spare.stdin.close()           # end of input: a waiting spare exits
         except OSError:
             pass
-        spare.terminate()
-        try:
-            spare.wait(timeout=STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            spare.kill()
-            spare.wait()
-        kill_group(spare.pid)
+        stop_all([("hot spare", spare)], STOP_TIMEOUT_S)

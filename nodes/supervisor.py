@@ -9,13 +9,11 @@ from __future__ import annotations
 
 import logging
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-from nodes.procs import _child_setup, kill_group
+from nodes.procs import _child_setup, kill_group, stop_all
 from nodes.run_config import NodeProc
 
 log = logging.getLogger(__name__)
@@ -132,16 +130,4 @@ class Supervisor:
     # ------------------------------------------------------------ stopping
     def terminate(self, names: list[str]) -> None:
         """SIGTERM to these nodes, SIGKILL to those still running after ``STOP_TIMEOUT_S``."""
-        procs = [self.nodes[n] for n in names if self.nodes[n].proc is not None]
-        for n in procs:
-            if n.proc.poll() is None:
-                n.proc.send_signal(signal.SIGTERM)
-        t_end = time.monotonic() + STOP_TIMEOUT_S
-        for n in procs:
-            try:
-                n.proc.wait(timeout=max(0.1, t_end - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                log.warning("%s did not stop in %.0f s: killing it", n.name, STOP_TIMEOUT_S)
-                n.proc.kill()
-                n.proc.wait()
-            kill_group(n.proc.pid)       # anything the node left behind
+        stop_all([(n, self.nodes[n].proc) for n in names if self.nodes[n].proc is not None], STOP_TIMEOUT_S)
