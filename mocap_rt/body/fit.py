@@ -8,6 +8,7 @@ chooses them: each candidate is an analytic pose (``analytic._analytic``) scored
            + ``silhouette_weight`` * chamfer cost of its capsule body (cm^2, ``body.silhouette``)
            + ``pan_change_cost`` * |pan turned| + per limb ``swivel_change_cost`` * |swivel changed|
            + ``swivel_prior_cost`` * |swivel away from the default pole|   (degrees)
+           + ``foot_axis_weight`` * foot-axis cost of its shoes (cm^2, ``body.foot_axis``)
 
 and searched coordinate-wise in numba: the pan over +-``pan_search_deg`` around the
 given axes (``pan_step_deg``, then ``pan_refine`` halvings of the step around the best),
@@ -26,13 +27,13 @@ import numpy as np
 from numba import njit
 
 from mocap_rt.body.analytic import _LIMB_JOINTS, AnalyticConfig, _analytic, _angles_from_frames, _cross, _rot_about
+from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, foot_axis_cost
 from mocap_rt.body.kinematics import fk_kernel
 from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SilhouetteTargets, body_capsules, capsules_cost, \
     pose_points
 from mocap_rt.body.skeleton import J, BodyModel
 from mocap_rt.studio.body_map import POINT_NAMES
 
-M2_TO_CM2 = 1e4
 
 
 @dataclass(frozen=True)
@@ -48,12 +49,15 @@ class FitConfig:
     swivel_step_deg: float = 15.0
     swivel_change_cost: float = 0.05   # per degree changed since the previous frame
     swivel_prior_cost: float = 0.1     # per degree away from the default pole
+    foot_axis_weight: float = 1.0      # per cm^2 of shoe axis off the measured blob axes (body.foot_axis)
 
 
 @njit(cache=True, nogil=True)
 def _evaluate(cues, axes, swivel, lengths, poles, foot_rest, limb_joints, parents, offsets, rest_local, dof, lo, hi,
-              foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w_sil, R, ang, pos, rot, points, A, B):
-    """(limit violation degrees, silhouette cost cm^2) of the analytic pose for ``axes``, ``swivel``."""
+              foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot,
+              points, A, B):
+    """(limit violation degrees, silhouette cost cm^2, foot-axis cost cm^2) of the analytic pose
+    for ``axes``, ``swivel``; a term whose weight is 0 is not computed (0)."""
     pelvis = _analytic(cues, axes, lengths, poles[0], poles[1], poles[2], foot_rest, limb_joints, swivel, R)
     _angles_from_frames(parents, rest_local, dof, R, ang)
     viol = 0.0
@@ -62,20 +66,24 @@ def _evaluate(cues, axes, swivel, lengths, poles, foot_rest, limb_joints, parent
             if dof[j, q]:
                 viol += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
     sil = 0.0
-    if w_sil > 0.0:
+    foot = 0.0
+    if w_sil > 0.0 or w_foot > 0.0:
         fk_kernel(parents, offsets, rest_local, pelvis, ang, pos, rot)
         pose_points(pos, rot, foot_pitch, points)
+    if w_sil > 0.0:
         body_capsules(points, A, B)
-        sil = capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline) * 1e4
-    return np.degrees(viol), sil
+        sil = capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline) * M2_TO_CM2
+    if w_foot > 0.0:
+        foot = foot_axis_cost(points, P, f, feet)
+    return np.degrees(viol), sil, foot
 
 
 @njit(cache=True, nogil=True)
 def _fit(cues, axes0, swivel_prev, lengths, poles, foot_rest, limb_joints, parents, offsets, rest_local, dof, lo, hi,
-         foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w, pan_offsets, n_refine, n_sw, sw_step,
+         foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w, pan_offsets, n_refine, n_sw, sw_step,
          out_axes, out_swivel, out_terms):
     """Coordinate search (see the module doc); writes the best axes (3, 3), swivel (4,)
-    and terms (total, violation, silhouette) into the ``out_*`` arrays."""
+    and terms (total, violation, silhouette, foot axis) into the ``out_*`` arrays."""
     nj = parents.shape[0]
     R = np.empty((nj, 3, 3))
     ang = np.empty((nj, 3))
@@ -88,7 +96,7 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, foot_rest, limb_joints, paren
     up = axes0[:, 2].copy()
     right0 = axes0[:, 0].copy()
     sw = swivel_prev.copy()
-    w_sil, c_pan, c_change, c_prior = w[0], w[1], w[2], w[3]
+    w_sil, c_pan, c_change, c_prior, w_foot = w[0], w[1], w[2], w[3], w[4]
     base = 0.0
     for i in range(4):
         base += c_prior * abs(np.degrees(sw[i]))
@@ -107,16 +115,16 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, foot_rest, limb_joints, paren
             fw = _cross(up, r)
             for i in range(3):
                 axc[i, 0], axc[i, 1], axc[i, 2] = r[i], fw[i], up[i]
-            viol, sil = _evaluate(cues, axc, sw, lengths, poles, foot_rest, limb_joints, parents, offsets, rest_local,
-                                  dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w_sil, R,
-                                  ang, pos, rot, points, A, B)
-            cost = viol + w_sil * sil + c_pan * abs(np.degrees(a)) + base
+            viol, sil, foot = _evaluate(cues, axc, sw, lengths, poles, foot_rest, limb_joints, parents, offsets,
+                                        rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline,
+                                        n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B)
+            cost = viol + w_sil * sil + w_foot * foot + c_pan * abs(np.degrees(a)) + base
             if cost < best:
                 best = cost
                 best_a = a
                 out_axes[:, :] = axc
-                out_terms[0], out_terms[1], out_terms[2] = cost, viol, sil
-    pan_cost = best - out_terms[1] - w_sil * out_terms[2] - base
+                out_terms[0], out_terms[1], out_terms[2], out_terms[3] = cost, viol, sil, foot
+    pan_cost = best - out_terms[1] - w_sil * out_terms[2] - w_foot * out_terms[3] - base
     out_swivel[:] = sw
     for limb in range(4):
         if n_sw == 0:
@@ -126,28 +134,30 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, foot_rest, limb_joints, paren
                 continue
             sw[:] = out_swivel
             sw[limb] = swivel_prev[limb] + sw_step * k
-            viol, sil = _evaluate(cues, out_axes, sw, lengths, poles, foot_rest, limb_joints, parents, offsets,
-                                  rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline,
-                                  n_outline, w_sil, R, ang, pos, rot, points, A, B)
-            cost = viol + w_sil * sil + pan_cost
+            viol, sil, foot = _evaluate(cues, out_axes, sw, lengths, poles, foot_rest, limb_joints, parents, offsets,
+                                        rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline,
+                                        n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B)
+            cost = viol + w_sil * sil + w_foot * foot + pan_cost
             for i in range(4):
                 cost += c_prior * abs(np.degrees(sw[i])) + c_change * abs(np.degrees(sw[i] - swivel_prev[i]))
             if cost < best:
                 best = cost
                 out_swivel[limb] = sw[limb]
-                out_terms[0], out_terms[1], out_terms[2] = cost, viol, sil
+                out_terms[0], out_terms[1], out_terms[2], out_terms[3] = cost, viol, sil, foot
 
 
 @dataclass(frozen=True)
 class FitResult:
     """axes (3, 3) columns right, forward, up; swivel (4,) radians (arm_l, arm_r, leg_l,
-    leg_r); cost, violation_deg, silhouette_cm2 the terms of the chosen candidate."""
+    leg_r); cost, violation_deg, silhouette_cm2, foot_axis_cm2 the terms of the chosen
+    candidate (foot_axis_cm2 unweighted, 0 without measured axes)."""
 
     axes: np.ndarray
     swivel: np.ndarray
     cost: float
     violation_deg: float
     silhouette_cm2: float
+    foot_axis_cm2: float = 0.0
 
 
 class BodyFitter:
@@ -169,11 +179,14 @@ class BodyFitter:
 
     def fit(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
             targets: SilhouetteTargets | None, search_swivel: bool = True, pan_search_deg: float | None = None,
-            pan_step_deg: float | None = None, pan_refine: int | None = None) -> FitResult:
+            pan_step_deg: float | None = None, pan_refine: int | None = None,
+            feet: np.ndarray | None = None) -> FitResult:
         """Best pan and swivels for cues (6, 3) (all finite, metres, world) from ``axes``
         (3, 3) and the previous ``swivel`` (4,) radians; ``targets`` None = limits only.
         The pan is searched within +-``pan_search_deg`` in steps of ``pan_step_deg``, then
-        refined ``pan_refine`` times (defaults: the config's)."""
+        refined ``pan_refine`` times (defaults: the config's). ``feet`` (6, C, 3): the
+        measured shoe axes of ``targets``' cameras labelled like ``cues``
+        (``foot_axis.foot_axes``); used with ``targets`` only (they carry the projection)."""
         c = self.config
         pan_deg = c.pan_search_deg if pan_search_deg is None else pan_search_deg
         step = c.pan_step_deg if pan_step_deg is None else pan_step_deg
@@ -181,19 +194,22 @@ class BodyFitter:
         offsets = np.radians(step * np.arange(-n_pan, n_pan + 1))
         if pan_deg >= 180.0:                       # the full circle: -180 and 180 are one
             offsets = offsets[np.abs(offsets) < np.pi - 1e-9]
-        out_axes, out_sw, terms = np.empty((3, 3)), np.zeros(4), np.zeros(3)
+        out_axes, out_sw, terms = np.empty((3, 3)), np.zeros(4), np.zeros(4)
         have = targets is not None and targets.n_views > 0
-        sil_args = targets.args() if have else _NO_VIEWS
+        use_feet = targets is not None and feet is not None and c.foot_axis_weight > 0
+        sil_args = targets.args() if (have or use_feet) else _NO_VIEWS
+        feet2 = np.ascontiguousarray(feet[list(FOOT_CUES)], np.float64) if use_feet else _NO_FEET
         w = np.array([c.silhouette_weight if have else 0.0, c.pan_change_cost, c.swivel_change_cost,
-                      c.swivel_prior_cost])
+                      c.swivel_prior_cost, c.foot_axis_weight if use_feet else 0.0])
         n_sw = int(c.swivel_search_deg // c.swivel_step_deg) if (search_swivel and c.swivel_step_deg > 0) else 0
         sw0 = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
         _fit(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64), sw0, self._lengths,
-             self._poles, *self._model_args, *sil_args, w, offsets, c.pan_refine if pan_refine is None else pan_refine,
-             n_sw,
-             np.radians(c.swivel_step_deg), out_axes, out_sw, terms)
-        return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]))
+             self._poles, *self._model_args, *sil_args, feet2, w, offsets,
+             c.pan_refine if pan_refine is None else pan_refine, n_sw, np.radians(c.swivel_step_deg), out_axes, out_sw,
+             terms)
+        return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]), float(terms[3]))
 
 
+_NO_FEET = np.zeros((2, 1, 3))
 _NO_VIEWS = (np.zeros((1, 3, 4)), np.ones(1), np.zeros((1, 6), np.int64), np.zeros(1, np.float32),
              np.zeros(1, np.int64), np.zeros((1, 1, 2)), np.zeros(1, np.int64))

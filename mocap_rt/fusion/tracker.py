@@ -10,9 +10,10 @@
 3. identify: the labelling against its alternatives (hands / feet exchanged, the body
    mirrored), switched on clear evidence (``fusion.identity``);
 4. filter: a constant-velocity Kalman filter per cue (``fusion.filter``), gating and coasting;
-5. ik: the pan and limb swivels fitted to the silhouettes and joint limits
-   (``body.fit``), the analytic two-link IK (A.5), optionally refined by the improved CCD
-   (B.7) on the 38-DOF model; then a ``FusionResult`` (3D cues, joints, BVH row, timings).
+5. ik: the pan and limb swivels fitted to the silhouettes, the shoe blobs' axes
+   (``body.foot_axis``) and the joint limits (``body.fit``), the analytic two-link IK
+   (A.5), optionally refined by the improved CCD (B.7) on the 38-DOF model; then a
+   ``FusionResult`` (3D cues, joints, BVH row, timings).
 
 ``predict(frame)`` extrapolates the filter to a coming frame and gives every camera the
 predicted 2D cues with Z-buffer visibility and blob radius (A.4).
@@ -34,6 +35,7 @@ import numpy as np
 from mocap_rt.body.analytic import (AnalyticConfig, analytic_pose, body_axes, pan_angle, refine_pan,
                                    refine_swivel)
 from mocap_rt.body.fit import BodyFitter, FitConfig
+from mocap_rt.body.foot_axis import follow_relabelling, foot_axes
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
@@ -237,19 +239,20 @@ class BodyTracker:
 
     # ------------------------------------------------------------------ body
     def solve_pose(self, cues_ik: np.ndarray, velocity: np.ndarray | None = None,
-                   targets: SilhouetteTargets | None = None
+                   targets: SilhouetteTargets | None = None, feet: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Body pose from six 3D cues (6, 3) (head and torso finite), updating the pan state.
 
         With silhouettes (``targets`` with views) the pan and the limb swivels are fitted to
-        them and to the joint limits (``BodyFitter``); without, to the limits alone
+        them, the shoe axes ``feet`` (6, C, 3) (``foot_axis.foot_axes``, labelled like the cues)
+        and the joint limits (``BodyFitter``); without, to the limits alone
         (``refine_pan``, ``refine_swivel``). Returns (root (3,), angles (J, 3) radians,
         joints (J, 3) metres, axes (3, 3)).
         """
         cfg = self.config.analytic
         axes = body_axes(cues_ik, self._right, velocity, cfg)
         if targets is not None and targets.n_views > 0:
-            res = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, self._swivel, targets)
+            res = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, self._swivel, targets, feet=feet)
             axes, self._swivel = res.axes, res.swivel
         else:
             if cfg.pan_search_deg > 0:
@@ -322,22 +325,24 @@ class BodyTracker:
         uv, w = self._gather(cues)
         targets = (SilhouetteTargets.from_cues(self.cameras, cues, self._sil_projection)
                    if self.config.silhouettes else None)
+        feet = (foot_axes(cues, self._names, w) if targets is not None and self.config.fit.foot_axis_weight > 0
+                else None)
         ts = time.perf_counter()
         timings["silhouettes"] = (ts - t0) * 1e3
         if self.config.fix_left_right:
             ref = self.filter.predict_at(t_s) if self.filter.alive.any() else None
-            uv, w, n_fixed = fix_left_right(self._tri, self._proj, uv, w, ref)
+            uv0, (uv, w, n_fixed) = uv, fix_left_right(self._tri, self._proj, uv, w, ref)
             self.relabelled += n_fixed
+            feet = follow_relabelling(feet, uv0, uv) if (feet is not None and n_fixed) else feet
         X, used = self.triangulate(uv, w)
         t1 = time.perf_counter()
         timings["triangulate"] = (t1 - ts) * 1e3
         valid = np.isfinite(X).all(axis=1)
         X = self._reject_duplicates(X, valid, t_s, used)
         valid = np.isfinite(X).all(axis=1)
-        X = self._identify(X, valid, t_s, targets)
-        t1b = time.perf_counter()
-        timings["identify"] = (t1b - t1) * 1e3
-        t1 = t1b
+        X, feet = self._identify(X, valid, t_s, targets, feet)
+        t1, t_id = time.perf_counter(), t1
+        timings["identify"] = (t1 - t_id) * 1e3
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
         valid &= accepted
         filt = np.where(self.filter.alive[:, None], self.filter.pos, np.nan)
@@ -353,17 +358,15 @@ class BodyTracker:
             v = self.filter.vel[C_TORSO]
             a = self.config.velocity_smoothing
             self._vel = v.copy() if self._vel is None else a * self._vel + (1 - a) * v
-            root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets)
+            root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
             pan = pan_angle(axes)
             self._last_pose = (root, angles)
             joint_valid = _joint_validity(have)
         self._maybe_calibrate(np.where(valid[:, None], X, np.nan), axes)
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
-        if self._last_pose is not None:
-            row = self.bvh_row(*self._last_pose)
-        else:
-            row = bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3)))
+        row = (self.bvh_row(*self._last_pose) if self._last_pose is not None
+               else bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
         self._update_pair(cues_ik)
         timings["total"] = (time.perf_counter() - t0) * 1e3
         cams_used = tuple(self._names[c] for c in range(len(self._names)) if used[c].any())
@@ -371,28 +374,29 @@ class BodyTracker:
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
                             root, angles, pan, pair, cues_ik, axes, joint_valid)
 
-    def _identify(self, X: np.ndarray, valid: np.ndarray, t_s: float, targets: SilhouetteTargets | None
-                  ) -> np.ndarray:
+    def _identify(self, X: np.ndarray, valid: np.ndarray, t_s: float, targets: SilhouetteTargets | None,
+                  feet: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         """Left/right identity and heading as competing hypotheses (``fusion.identity``):
         score the labelling and its alternatives, switch labels and filter tracks on clear
-        evidence. Returns X (6, 3), possibly with rows exchanged."""
+        evidence. Returns X (6, 3) and the shoe axes ``feet`` (6, C, 3) or None alike."""
         cfg = self.config.identity
         if not self.filter.alive[[C_HEAD, C_TORSO]].all():
             self.identity.reset()        # the body (re)starts: acquire afresh, heading unknown
             self._axes = None
         if not cfg.enabled:
-            return X
+            return X, feet
         pred = self.filter.predict_at(t_s) if self.filter.alive.any() else np.full_like(X, np.nan)
         cues = np.where(valid[:, None], X, pred)
         if not np.isfinite(cues[[C_HEAD, C_TORSO]]).all():
-            return X
+            return X, feet
         costs = score_hypotheses(self._fitter, cues, self._rest_cues, self._axes, targets, cfg)
         if targets is None or targets.n_views == 0:
             costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
         k = decide(self.identity, costs, cfg)
         if k < 0:
-            return X
+            return X, feet
         X = swap_pairs(X, k)
+        feet = None if feet is None else swap_pairs(feet, k)
         for a, b in ALTERNATIVE_PAIRS[k]:
             self.filter.swap(a, b)
         if ALTERNATIVES[k] == "mirror" and self._right is not None:
@@ -400,7 +404,7 @@ class BodyTracker:
             self._axes = self._axes * [-1.0, -1.0, 1.0]
         self._swivel = np.zeros(4)
         log.info("identity: switched to the %s alternative (costs %s)", ALTERNATIVES[k], np.round(costs, 1))
-        return X
+        return X, feet
 
     def _reject_duplicates(self, X: np.ndarray, valid: np.ndarray, t_s: float, used: np.ndarray) -> np.ndarray:
         """Drop a hand/foot measured on top of the head unless it was predicted there, and
