@@ -5,8 +5,11 @@ A shoe is a capsule from heel to toe (``studio.body_shape``: 0.22 m long, 0.045 
 so the major axis of its blob is the projection of the heel->toe axis, known modulo 180 deg,
 and well defined only when the blob is elongated (a shoe seen end-on is round). Six cue
 points leave the pan and the legs' swivel free (seed digest A.5); the feet's directions
-constrain both, and a leg crossed to the other foot (a feet-swap hypothesis) points its
-foot elsewhere than the shoe it reaches.
+constrain both: the analytic body's foot is rigid on its shank, so its heading is the knee's
+(``FitConfig.foot_axis_weight``: the tracker's pan and swivel fit). The axis does not tell
+the left/right hypotheses apart (``fusion.identity`` scores them without it): known modulo
+180 deg it is the same for a mirrored body, and a leg crossed to the other foot points that
+foot forward much as the right leg does (docs/body.md, "Foot direction").
 
 Measured axis, per foot cue and camera (``foot_axes``): the unit major eigenvector ``a``
 (u, v) of the blob covariance and the weight ``w = elongation * confidence``, elongation
@@ -49,20 +52,6 @@ FOOT_CUES = (C_FOOT_L, C_FOOT_R)   # the cues whose blobs are shoes
 M2_TO_CM2 = 1e4
 
 
-def blob_axis(cov: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Of a 2x2 blob covariance (px^2): the major axis (2,) unit vector (u, v), sign-normalised
-    to u >= 0 (the axis is known mod 180 deg), the elongation ``1 - l2 / l1`` in [0, 1] and the
-    major standard deviation sqrt(l1) px; (NaN, 0, 0) for a non-finite covariance."""
-    cov = np.asarray(cov, np.float64)
-    if cov.shape != (2, 2):
-        raise ValueError(f"blob covariance must be (2, 2), got {cov.shape}")
-    if not np.isfinite(cov).all():
-        return np.full(2, np.nan), 0.0, 0.0
-    sd1, sd2, c, s = ellipse_frame(np.ascontiguousarray(cov))
-    a = np.array([c, s]) if c > 0 or (c == 0 and s >= 0) else -np.array([c, s])
-    return a, float(max(0.0, 1.0 - (sd2 / sd1) ** 2)), float(sd1)
-
-
 def foot_axes(cues: Mapping[str, CameraCues], camera_names: Sequence[str], weights: np.ndarray | None = None,
               min_area_px: float = MIN_AXIS_AREA_PX) -> np.ndarray:
     """The measured shoe axes of one frame: (6, C, 3) rows (a_u, a_v, w) per cue and camera
@@ -76,23 +65,48 @@ def foot_axes(cues: Mapping[str, CameraCues], camera_names: Sequence[str], weigh
     one-sigma major axis reaches the other foot's centre in that view.
     """
     C = len(camera_names)
-    out = np.zeros((N_CUES, C, 3))
-    out[..., :2] = np.nan
+    feet = list(FOOT_CUES)
+    cov = np.full((C, 2, 2, 2), np.nan)
+    xy = np.full((C, 2, 2), np.nan)
+    area = np.zeros((C, 2))
+    conf = np.zeros((C, 2))
     for c, name in enumerate(camera_names):
         cc = cues.get(name)
-        if cc is None:
-            continue
-        sd1 = {}
-        for k in FOOT_CUES:
-            conf = float(cc.confidence[k] if weights is None else weights[c, k])
-            a, elong, sd = blob_axis(cc.cov[k])
-            if conf <= 0 or cc.area[k] < min_area_px or not np.isfinite(cc.xy[k]).all() or not np.isfinite(a).all():
-                continue
-            out[k, c] = a[0], a[1], elong * conf
-            sd1[k] = sd
-        if len(sd1) == 2 and np.linalg.norm(cc.xy[C_FOOT_L] - cc.xy[C_FOOT_R]) < sd1[C_FOOT_L] + sd1[C_FOOT_R]:
-            out[list(FOOT_CUES), c, 2] = 0.0
+        if cc is not None:
+            cov[c], xy[c], area[c] = cc.cov[feet], cc.xy[feet], cc.area[feet]
+            conf[c] = cc.confidence[feet] if weights is None else weights[c, feet]
+    out = np.zeros((N_CUES, C, 3))
+    out[..., :2] = np.nan
+    measured = np.empty((2, C, 3))
+    _measure(cov, xy, area, conf, float(min_area_px), measured)
+    out[feet] = measured
     return out
+
+
+@njit(cache=True, nogil=True)
+def _measure(cov, xy, area, conf, min_area_px, out):
+    """``foot_axes`` of the feet: cov (C, 2, 2, 2) px^2, xy (C, 2, 2) px, area (C, 2) px,
+    conf (C, 2) per camera and foot (left, right) -> out (2, C, 3) (a_u, a_v, w)."""
+    for c in range(cov.shape[0]):
+        sd = np.zeros(2)
+        for k in range(2):
+            out[k, c, 0] = np.nan
+            out[k, c, 1] = np.nan
+            out[k, c, 2] = 0.0
+            if not (conf[c, k] > 0.0 and area[c, k] >= min_area_px and np.isfinite(xy[c, k, 0])
+                    and np.isfinite(xy[c, k, 1]) and np.all(np.isfinite(cov[c, k]))):
+                continue
+            sd1, sd2, u, v = ellipse_frame(cov[c, k])
+            sign = 1.0 if (u > 0.0 or (u == 0.0 and v >= 0.0)) else -1.0
+            out[k, c, 0] = sign * u
+            out[k, c, 1] = sign * v
+            out[k, c, 2] = max(0.0, 1.0 - (sd2 / sd1) ** 2) * conf[c, k]
+            sd[k] = sd1
+        if sd[0] > 0.0 and sd[1] > 0.0:
+            gap = np.sqrt((xy[c, 0, 0] - xy[c, 1, 0]) ** 2 + (xy[c, 0, 1] - xy[c, 1, 1]) ** 2)
+            if gap < sd[0] + sd[1]:
+                out[0, c, 2] = 0.0
+                out[1, c, 2] = 0.0
 
 
 def follow_relabelling(axes: np.ndarray, uv_before: np.ndarray, uv_after: np.ndarray) -> np.ndarray:
@@ -133,11 +147,3 @@ def foot_axis_cost(points, P, f, feet):
         if n > 0:
             total += s / n
     return total * M2_TO_CM2
-
-
-def body_foot_axis_cost(points: np.ndarray, projection: tuple[np.ndarray, np.ndarray], axes: np.ndarray) -> float:
-    """``foot_axis_cost`` of body points (len(POINT_NAMES), 3) against the per-cue axes (6, C, 3)
-    of ``foot_axes``; ``projection`` = ``silhouette.rig_projection(cameras)``."""
-    P, f = projection
-    return float(foot_axis_cost(np.ascontiguousarray(points, np.float64), P, f,
-                                np.ascontiguousarray(axes[list(FOOT_CUES)], np.float64)))

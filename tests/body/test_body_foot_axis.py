@@ -53,10 +53,12 @@ def test_rendered_shoe_blob_axis_is_the_projected_heel_toe_axis(studio):
         d = np.array([np.cos(heading), np.sin(heading), 0.0])
         heel, toe = centre - HALF * d, centre + HALF * d
         for c, cam in enumerate(rig.cameras):
-            cov, _, _ = shoe_covariance(ren, c, heel, toe)
-            a, elong, sd1 = FA.blob_axis(cov)
+            cov, xy, area = shoe_covariance(ren, c, heel, toe)
+            m = FA.foot_axes({"c": _cues({C_FOOT_L: xy}, {C_FOOT_L: cov}, {C_FOOT_L: area}, {C_FOOT_L: 1.0})}, ["c"])
+            a, elong = m[C_FOOT_L, 0, :2], m[C_FOOT_L, 0, 2]
             assert np.isclose(np.linalg.norm(a), 1.0) and a[0] >= 0 and 0.0 <= elong <= 1.0
-            assert np.isclose(sd1 ** 2, np.linalg.eigvalsh(cov)[-1])
+            lo, hi = np.linalg.eigvalsh(cov)
+            assert np.isclose(elong, 1 - lo / hi)
             uv = cam.project(np.array([heel, toe]))[0]
             if elong > 0.5:
                 errs.append(_angle_mod180(a, uv[1] - uv[0]))
