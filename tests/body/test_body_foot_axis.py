@@ -193,8 +193,7 @@ def test_shoe_axes_bring_the_fitted_knees_to_the_truth(data_dir, studio):
     from mocap_rt.body.kinematics import forward_kinematics
     from mocap_rt.body.silhouette import SilhouetteTargets
     from mocap_rt.body.skeleton import J, body_model
-    from mocap_rt.cues import CompactSilhouette
-    from mocap_rt.fusion.evaluate import trunk_axes
+    from mocap_rt.fusion.evaluate import truth_silhouette, trunk_axes
     from mocap_rt.io.bvh import read_bvh
     from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES
     from mocap_rt.studio.body_map import body_motion
@@ -216,15 +215,13 @@ def test_shoe_axes_bring_the_fitted_knees_to_the_truth(data_dir, studio):
         cues = {}
         for c, cam in enumerate(rig.cameras):
             m = ren.render(c, prims, fr).mask
-            ys, xs = np.nonzero(m)
-            box = (xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
-            sil = CompactSilhouette.from_box_mask(m[box[1]:box[1] + box[3], box[0]:box[0] + box[2]], box)
+            sil = truth_silhouette(np.packbits(m, axis=1), m.shape[1])
             xy, cov, area = np.full((6, 2), np.nan), np.full((6, 2, 2), np.nan), np.zeros(6)
             for k, s in ((C_FOOT_L, "l"), (C_FOOT_R, "r")):
                 shoe = shoe_covariance(ren, c, pts[POINT_NAMES.index(f"heel_{s}")], pts[POINT_NAMES.index(f"toe_{s}")])
                 if shoe is not None:
                     cov[k], xy[k], area[k] = shoe
-            cues[cam.name] = CameraCues(cam.name, fr, xy, cov, area, (area > 0).astype(float), box, {}, sil)
+            cues[cam.name] = CameraCues(cam.name, fr, xy, cov, area, (area > 0).astype(float), silhouette=sil)
         targets = SilhouetteTargets.from_cues(rig.cameras, cues)
         feet = FA.foot_axes(cues, rig.names)
         X = pts[list(CUE_JOINT_INDEX)]
