@@ -35,7 +35,6 @@ from mocap_rt.body.skeleton import J, BodyModel
 from mocap_rt.studio.body_map import POINT_NAMES
 
 
-
 @dataclass(frozen=True)
 class FitConfig:
     """Weights and search ranges of ``BodyFitter`` (degrees; silhouette cost in cm^2)."""
@@ -198,6 +197,9 @@ class BodyFitter:
         have = targets is not None and targets.n_views > 0
         use_feet = targets is not None and feet is not None and c.foot_axis_weight > 0
         sil_args = targets.args() if (have or use_feet) else _NO_VIEWS
+        if use_feet and np.shape(feet) != (len(cues), targets.P.shape[0], 3):
+            raise ValueError(f"feet must be (cues, cameras, 3) = ({len(cues)}, {targets.P.shape[0]}, 3), "
+                             f"got {np.shape(feet)}")
         feet2 = np.ascontiguousarray(feet[list(FOOT_CUES)], np.float64) if use_feet else _NO_FEET
         w = np.array([c.silhouette_weight if have else 0.0, c.pan_change_cost, c.swivel_change_cost,
                       c.swivel_prior_cost, c.foot_axis_weight if use_feet else 0.0])

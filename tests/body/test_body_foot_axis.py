@@ -237,3 +237,18 @@ def test_shoe_axes_bring_the_fitted_knees_to_the_truth(data_dir, studio):
             mpjpe[use].append(np.linalg.norm(got - joints[fr], axis=1).mean())
     assert np.mean(knee_err[True]) < np.mean(knee_err[False]) - 0.010
     assert np.mean(mpjpe[True]) <= np.mean(mpjpe[False])
+
+
+def test_fit_refuses_axes_of_another_rig():
+    """Shoe axes for a different number of cameras than the targets' would be read out of bounds
+    by the kernel: a ValueError naming the shapes instead."""
+    from mocap_rt.body.fit import BodyFitter
+    from mocap_rt.body.silhouette import SilhouetteTargets
+    from mocap_rt.body.skeleton import BoneLengths, body_model
+    from mocap_rt.names import CUE_JOINT_INDEX
+
+    model = body_model(BoneLengths(), "paper")
+    rig = ring_rig(6, size=(320, 240))
+    X = model.rest_positions()[list(CUE_JOINT_INDEX)]
+    with pytest.raises(ValueError, match=r"feet must be .*\(6, 6, 3\).*\(6, 4, 3\)"):
+        BodyFitter(model).fit(X, np.eye(3), None, SilhouetteTargets(rig.cameras), feet=np.zeros((6, 4, 3)))
