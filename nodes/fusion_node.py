@@ -119,8 +119,8 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
     """Step the tracker on one gathered frame and publish the pose and the next frame's
     predictions.
 
-    ``pose_first`` (triggered rates): the pose goes out right after ``step``, then
-    ``predict`` and the predictions; the next trigger is a period away, so the workers still
+    ``pose_first`` (triggered rates): the pose goes out right after ``fit_frame``, then the
+    identity (``identify_frame``), ``predict`` and the predictions; the next trigger is a period away, so the workers still
     have them in time, and the work the predictions release in the workers (their deferred
     decode) cannot preempt the pose. Free-running (the sync triggers on the pose): the
     predictions go first, else the next trigger could overtake them.
@@ -128,9 +128,12 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
     t_ready_ns = time.monotonic_ns()
     t0 = time.perf_counter()
     try:
-        result = tracker.step(pf.frame, pf.cues)
+        result = tracker.fit_frame(pf.frame, pf.cues)
         t1 = time.perf_counter()
-        predictions = None if pose_first else tracker.predict(pf.frame + 1)
+        predictions = None
+        if not pose_first:
+            tracker.identify_frame(result.timings_ms)
+            predictions = tracker.predict(pf.frame + 1)
     except Exception as exc:  # a fusion failure on one frame must not end the service
         log.exception("fusion: frame %d failed: %s", pf.frame, exc)
         rt.extra["fusion_errors"] = rt.extra.get("fusion_errors", 0) + 1
@@ -152,16 +155,19 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
                 used, missing, tracker.lengths.as_array(), timings)
     pose_pub.put(pose.to_msgpack())
     if predictions is None:
-        t4 = time.perf_counter()
+        t4 = t_id = time.perf_counter()
         try:
+            tracker.identify_frame()
+            t_id = time.perf_counter()
             predictions = tracker.predict(pf.frame + 1)
         except Exception as exc:  # noqa: BLE001 - as above: count, log, carry on
-            log.exception("fusion: prediction for frame %d failed: %s", pf.frame + 1, exc)
+            log.exception("fusion: identity or prediction for frame %d failed: %s", pf.frame + 1, exc)
             rt.extra["fusion_errors"] = rt.extra.get("fusion_errors", 0) + 1
             predictions = {}
         t5 = time.perf_counter()
         publish_predictions(keys, predictions, pred_pubs)
-        rt.extra["predict_ms"] = (t5 - t4) * 1e3
+        rt.extra["identify_ms"] = (t_id - t4) * 1e3
+        rt.extra["predict_ms"] = (t5 - t_id) * 1e3
         rt.extra["pred_pub_ms"] = (time.perf_counter() - t5) * 1e3
         t2 += t5 - t4
     rt.meter.add((t2 - t0) * 1e3)

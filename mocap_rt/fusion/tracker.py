@@ -7,13 +7,19 @@
    (``views.fix_left_right``), triangulated by ``FusionConfig.views`` (``"all"``: every
    view that sees a cue, with reprojection outlier rejection; ``"pair"``: the frontal
    pair of seed digest A.6);
-3. identify: the labelling against its alternatives (hands / feet exchanged, the body
-   mirrored), switched on clear evidence (``fusion.identity``);
-4. filter: a constant-velocity Kalman filter per cue (``fusion.filter``), gating and coasting;
-5. ik: the pan and limb swivels fitted to the silhouettes, the shoe blobs' axes
+3. filter: a constant-velocity Kalman filter per cue (``fusion.filter``), gating and coasting;
+4. ik: the pan and limb swivels fitted to the silhouettes, the shoe blobs' axes
    (``body.foot_axis``) and the joint limits (``body.fit``), the analytic two-link IK
    (A.5), optionally refined by the improved CCD (B.7) on the 38-DOF model; then a
-   ``FusionResult`` (3D cues, joints, BVH row, timings).
+   ``FusionResult`` (3D cues, joints, BVH row, timings);
+5. identify: the frame's labelling against its alternatives (hands / feet exchanged, the
+   body mirrored), switched on clear evidence (``fusion.identity``) for the frames that
+   follow. Stages 1-4 are ``fit_frame``, stage 5 ``identify_frame``: the service publishes
+   the pose between the two, so the identity (a third of a frame's work) is not in its
+   latency; a switch shows from the next frame on (it takes several frames of evidence).
+   Only while a track acquires its identity (its first ``IdentityConfig.acquire_frames``)
+   does ``fit_frame`` score the hypotheses before the fit, so that a cold start's first
+   poses have the acquired labels.
 
 ``predict(frame)`` extrapolates the filter to a coming frame and gives every camera the
 predicted 2D cues with Z-buffer visibility and blob radius (A.4).
@@ -34,25 +40,25 @@ import numpy as np
 
 from mocap_rt.body.analytic import (AnalyticConfig, analytic_pose, body_axes, pan_angle, refine_pan,
                                    refine_swivel)
-from mocap_rt.body.fit import BodyFitter, FitConfig
-from mocap_rt.body.foot_axis import follow_relabelling, foot_axes
-from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
+from mocap_rt.body.fit import BodyFitter, FitConfig
+from mocap_rt.body.foot_axis import follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
-from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BoneLengths, body_model
+from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
+from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState, decide,
                                       fill_missing, score_hypotheses, swap_pairs)
+from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, frontal_pair, predict_views,
-                                   triangulate_cues)
+                                   reject_duplicates, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
-from mocap_rt.names import (C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, CUE_INDEX, CUE_JOINT_INDEX,
-                            LIMB_CUES, LR_PAIRS, N_CUES)
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, CUE_INDEX, CUE_JOINT_INDEX, N_CUES
 
 log = logging.getLogger(__name__)
 
@@ -61,8 +67,6 @@ MIN_BLOB_RADIUS_PX = 8.0
 # A hand whose 2D cue lies within this many head-blob radii of the head's is taken for
 # a second detection of the face in that view and dropped there.
 SAME_BLOB_RADII = 1.5
-# two cues of a left/right pair closer than this (m) are one hand or foot labelled twice
-SAME_POINT_M = 0.03
 _EFFECTOR_CUES = np.array([CUE_INDEX[n] for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
 VIEW_MODES = ("all", "pair")
@@ -108,53 +112,6 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.fps must be > 0, got {self.fps}")
 
 
-@dataclass
-class FusionResult:
-    """One fused frame.
-
-    cues_3d : (6, 3) metres, world; the cues measured this frame (filtered if
-        ``use_filtered``), NaN where not reconstructed. cue_valid : (6,) bool.
-    joints : (20, 3) metres, world, JOINT_NAMES order (NaN before the first full pose).
-    bvh_frame : (n_channels,) motion row for ``BodyTracker.bvh_skeleton``.
-    cameras_used : names of the cameras that contributed a cue.
-    root_pos (3,), angles (20, 3) radians: the body model pose; pan_rad: the heading.
-    pair : the frontal pair's camera names in "pair" mode, else ().
-    cues_ik : (6, 3) the cues the IK used (measured, or predicted where missing);
-    axes : (3, 3) body frame (right, forward, up) or None.
-    joint_valid : (20,) bool, False for joints of a limb whose end cue was missing (that
-        limb is at the rest pose) and for all joints when there was no pose.
-    """
-
-    frame: int
-    cues_3d: np.ndarray
-    cue_valid: np.ndarray
-    joints: np.ndarray
-    bvh_frame: np.ndarray
-    cameras_used: tuple[str, ...]
-    timings_ms: dict
-    root_pos: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
-    angles: np.ndarray = field(default_factory=lambda: np.zeros((N_JOINTS, 3)))
-    pan_rad: float = float("nan")
-    pair: tuple[str, ...] = ()
-    cues_ik: np.ndarray = field(default_factory=lambda: np.full((N_CUES, 3), np.nan))
-    axes: np.ndarray | None = None
-    joint_valid: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS, dtype=bool))
-
-
-# joints that depend on each hand/foot cue (the limb beyond the shoulder/hip)
-_LIMB_OF_CUE = {CUE_INDEX[f"{k}_{s}"]: [J[f"{n}_{s}"] for n in names]
-                for s in ("l", "r") for k, names in (("hand", ("elbow", "wrist", "hand")),
-                                                     ("foot", ("knee", "ankle", "foot")))}
-
-
-def _joint_validity(have: np.ndarray) -> np.ndarray:
-    valid = np.ones(N_JOINTS, dtype=bool)
-    for c, joints in _LIMB_OF_CUE.items():
-        if not have[c]:
-            valid[joints] = False
-    return valid
-
-
 class BodyTracker:
     """Stateful fusion for one rig (see the module doc). Not thread-safe."""
 
@@ -181,6 +138,7 @@ class BodyTracker:
         self._swivel = np.zeros(4)   # elbow/knee pole swivels (analytic.refine_swivel)
         self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
         self.identity = IdentityState()
+        self._pending = None          # fit_frame -> identify_frame: what the identity scores
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
@@ -318,7 +276,15 @@ class BodyTracker:
 
     # ------------------------------------------------------------------ API
     def step(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:
-        """Fuse one frame (see the module doc)."""
+        """Fuse one frame (see the module doc): ``fit_frame`` then ``identify_frame``."""
+        result = self.fit_frame(frame, cues)
+        self.identify_frame(result.timings_ms)
+        return result
+
+    def fit_frame(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:
+        """Stages 1-4 of one frame (module doc): the frame's pose, with the labels the earlier
+        frames decided. ``identify_frame`` must follow before the next frame (the service
+        publishes the pose in between: the identity is off the latency path)."""
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
         t_s = frame / self.config.fps
@@ -335,13 +301,21 @@ class BodyTracker:
             self.relabelled += n_fixed
             feet = follow_relabelling(feet, uv0, uv) if (feet is not None and n_fixed) else feet
         X, used = self.triangulate(uv, w)
+        valid = np.isfinite(X).all(axis=1)
+        X = reject_duplicates(X, valid, used, self.filter.predict_at(t_s), self.config.duplicate_m)
+        valid = np.isfinite(X).all(axis=1)
+        t_id = time.perf_counter()
+        timings["triangulate"] = (t_id - ts) * 1e3
+        scored = self._identity_input(X, valid, t_s, targets)
+        if scored is not None and self.identity.frames < self.config.identity.acquire_frames:
+            # a track's first frames: its identity is being acquired, and a cold start's first
+            # pose should not wait a frame for it, so the hypotheses are scored before the fit
+            k = self._score_identity(*scored)
+            if k >= 0:
+                X = swap_pairs(X, k)
+                feet = None if feet is None else swap_pairs(feet, k)
+            scored = None
         t1 = time.perf_counter()
-        timings["triangulate"] = (t1 - ts) * 1e3
-        valid = np.isfinite(X).all(axis=1)
-        X = self._reject_duplicates(X, valid, t_s, used)
-        valid = np.isfinite(X).all(axis=1)
-        X, feet = self._identify(X, valid, t_s, targets, feet)
-        t1, t_id = time.perf_counter(), t1
         timings["identify"] = (t1 - t_id) * 1e3
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
         valid &= accepted
@@ -361,75 +335,78 @@ class BodyTracker:
             root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
             pan = pan_angle(axes)
             self._last_pose = (root, angles)
-            joint_valid = _joint_validity(have)
+            joint_valid = joint_validity(have)
         self._maybe_calibrate(np.where(valid[:, None], X, np.nan), axes)
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
         row = (self.bvh_row(*self._last_pose) if self._last_pose is not None
                else bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
         self._update_pair(cues_ik)
+        self._pending = None if scored is None else (scored, cues_ik, feet)
         timings["total"] = (time.perf_counter() - t0) * 1e3
         cams_used = tuple(self._names[c] for c in range(len(self._names)) if used[c].any())
         pair = tuple(self._names[i] for i in self._pair) if (self.config.views == "pair" and self._pair) else ()
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
                             root, angles, pan, pair, cues_ik, axes, joint_valid)
 
-    def _identify(self, X: np.ndarray, valid: np.ndarray, t_s: float, targets: SilhouetteTargets | None,
-                  feet: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-        """Left/right identity and heading as competing hypotheses (``fusion.identity``):
-        score the labelling and its alternatives, switch labels and filter tracks on clear
-        evidence. Returns X (6, 3) and the shoe axes ``feet`` (6, C, 3) or None alike."""
-        cfg = self.config.identity
+    def _identity_input(self, X: np.ndarray, valid: np.ndarray, t_s: float, targets: SilhouetteTargets | None
+                        ) -> tuple[np.ndarray, np.ndarray | None, SilhouetteTargets | None] | None:
+        """What the identity scores, taken before the frame changes the state: the cues (6, 3)
+        (measured, else predicted), the previous frame's body axes and the silhouettes; None
+        when there is nothing to score. A body that (re)starts acquires afresh."""
         if not self.filter.alive[[C_HEAD, C_TORSO]].all():
             self.identity.reset()        # the body (re)starts: acquire afresh, heading unknown
             self._axes = None
-        if not cfg.enabled:
-            return X, feet
+        if not self.config.identity.enabled:
+            return None
         pred = self.filter.predict_at(t_s) if self.filter.alive.any() else np.full_like(X, np.nan)
         cues = np.where(valid[:, None], X, pred)
         if not np.isfinite(cues[[C_HEAD, C_TORSO]]).all():
-            return X, feet
-        costs = score_hypotheses(self._fitter, cues, self._rest_cues, self._axes, targets, cfg)
+            return None
+        return cues, self._axes, targets
+
+    def identify_frame(self, timings_ms: dict | None = None) -> None:
+        """Stage 5 of the frame ``fit_frame`` just fitted (after the first ``acquire_frames`` of
+        a track, which ``fit_frame`` identifies before the fit): its labelling against the
+        alternatives (``fusion.identity``); on clear evidence the filter's tracks, the heading
+        and the limb swivels switch, and the next frame (its prediction first) has the new
+        labels. ``timings_ms``: the frame's timings, given the ``identify`` stage (ms)."""
+        t0 = time.perf_counter()
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            scored, cues_ik, feet = pending
+            k = self._score_identity(*scored)
+            if k >= 0 and np.isfinite(cues_ik[[C_HEAD, C_TORSO]]).all():
+                # refit the frame with the new labels: the next frame starts from the heading
+                # and swivels it would have had if this frame had been labelled so
+                self.solve_pose(swap_pairs(cues_ik, k), self._vel, scored[2],
+                                None if feet is None else swap_pairs(feet, k))
+        if timings_ms is not None:
+            ms = (time.perf_counter() - t0) * 1e3
+            timings_ms["identify"] = timings_ms.get("identify", 0.0) + ms
+            timings_ms["total"] = timings_ms.get("total", 0.0) + ms
+
+    def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None,
+                        targets: SilhouetteTargets | None) -> int:
+        """Score the hypotheses on ``cues`` (``_identity_input``); on a switch relabel the
+        filter's tracks, turn the heading for a mirror and reset the limb swivels. Returns the
+        alternative switched to (index into ALTERNATIVES) or -1."""
+        cfg = self.config.identity
+        costs = score_hypotheses(self._fitter, cues, self._rest_cues, prev_axes, targets, cfg)
         if targets is None or targets.n_views == 0:
             costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
         k = decide(self.identity, costs, cfg)
         if k < 0:
-            return X, feet
-        X = swap_pairs(X, k)
-        feet = None if feet is None else swap_pairs(feet, k)
+            return k
         for a, b in ALTERNATIVE_PAIRS[k]:
             self.filter.swap(a, b)
         if ALTERNATIVES[k] == "mirror" and self._right is not None:
             self._right = -self._right
-            self._axes = self._axes * [-1.0, -1.0, 1.0]
+            if self._axes is not None:
+                self._axes = self._axes * [-1.0, -1.0, 1.0]
         self._swivel = np.zeros(4)
         log.info("identity: switched to the %s alternative (costs %s)", ALTERNATIVES[k], np.round(costs, 1))
-        return X, feet
-
-    def _reject_duplicates(self, X: np.ndarray, valid: np.ndarray, t_s: float, used: np.ndarray) -> np.ndarray:
-        """Drop a hand/foot measured on top of the head unless it was predicted there, and
-        one of a left/right pair measured on top of the other.
-
-        Perception re-acquiring a lost hand can take the face blob in every view; the
-        triangulated "hand" is then the head. A real hand at the face was predicted near it.
-        A pair within ``SAME_POINT_M`` is one hand (foot) that different views labelled
-        differently (e.g. a cold start while the other is hidden everywhere): the label seen
-        by fewer views (``used`` (C, 6)) goes.
-        """
-        X = X.copy()
-        for a, b in LR_PAIRS:
-            if valid[a] and valid[b] and np.linalg.norm(X[a] - X[b]) < SAME_POINT_M:
-                X[b if used[:, a].sum() >= used[:, b].sum() else a] = np.nan
-        if not valid[C_HEAD]:
-            return X
-        pred = self.filter.predict_at(t_s)
-        dup = self.config.duplicate_m
-        for c in LIMB_CUES:
-            if valid[c] and np.linalg.norm(X[c] - X[C_HEAD]) < dup:
-                p = pred[c]
-                if not (np.isfinite(p).all() and np.linalg.norm(p - X[C_HEAD]) < 2 * dup):
-                    X[c] = np.nan
-        return X
+        return k
 
     def _update_pair(self, cues_ik: np.ndarray) -> None:
         if self.config.views != "pair":

@@ -27,7 +27,7 @@ import numpy as np
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.geometry.lens import dist8, distort
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
-from mocap_rt.names import LR_PAIRS
+from mocap_rt.names import C_HEAD, LIMB_CUES, LR_PAIRS
 
 # Physical cue radii (metres) for the predicted blob size and the Z-buffer discs,
 # in CUE_NAMES order: head, hands, feet (shoe), torso.
@@ -308,3 +308,33 @@ def fix_left_right(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, wei
 def _swap(uv: np.ndarray, w: np.ndarray, c: int, a: int, b: int) -> None:
     uv[c, [a, b]] = uv[c, [b, a]]
     w[c, [a, b]] = w[c, [b, a]]
+
+
+# two cues of a left/right pair closer than this (m) are one hand or foot labelled twice
+SAME_POINT_M = 0.03
+
+
+def reject_duplicates(X: np.ndarray, valid: np.ndarray, used: np.ndarray, pred: np.ndarray,
+                      duplicate_m: float) -> np.ndarray:
+    """A copy of the 3D cues X (6, 3) without a hand/foot measured within ``duplicate_m`` of
+    the head unless the prediction ``pred`` (6, 3) put it there, and without one of a
+    left/right pair measured on top of the other.
+
+    Perception re-acquiring a lost hand can take the face blob in every view; the
+    triangulated "hand" is then the head. A real hand at the face was predicted near it.
+    A pair within ``SAME_POINT_M`` is one hand (foot) that different views labelled
+    differently (e.g. a cold start while the other is hidden everywhere): the label seen
+    by fewer views (``used`` (C, 6) bool) goes. ``valid`` (6,) bool: the rows of X measured.
+    """
+    X = X.copy()
+    for a, b in LR_PAIRS:
+        if valid[a] and valid[b] and np.linalg.norm(X[a] - X[b]) < SAME_POINT_M:
+            X[b if used[:, a].sum() >= used[:, b].sum() else a] = np.nan
+    if not valid[C_HEAD]:
+        return X
+    for c in LIMB_CUES:
+        if valid[c] and np.linalg.norm(X[c] - X[C_HEAD]) < duplicate_m:
+            p = pred[c]
+            if not (np.isfinite(p).all() and np.linalg.norm(p - X[C_HEAD]) < 2 * duplicate_m):
+                X[c] = np.nan
+    return X

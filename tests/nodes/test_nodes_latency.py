@@ -42,24 +42,30 @@ def test_stage_timings_report_the_slowest_and_fastest_camera():
 
 
 class _Pub:
-    def __init__(self, log: list, key: str) -> None:
-        self.log, self.key = log, key
+    def __init__(self, log: list, key: str, calls: list | None = None) -> None:
+        self.log, self.key, self.calls = log, key, calls
 
     def put(self, payload: bytes) -> None:
         self.log.append((self.key, payload))
+        if self.calls is not None:
+            self.calls.append((self.key, None))
 
 
 class _Tracker:
-    """Records the calls; step -> a pose-like result, predict -> one prediction per camera."""
+    """Records the calls; fit_frame -> a pose-like result, identify_frame -> nothing,
+    predict -> one prediction per camera."""
 
     def __init__(self, cams, calls: list) -> None:
         self.cams, self.calls = cams, calls
         self.lengths = BoneLengths()
 
-    def step(self, frame, cues):
-        self.calls.append(("step", frame))
+    def fit_frame(self, frame, cues):
+        self.calls.append(("fit_frame", frame))
         return SimpleNamespace(cues_3d=np.zeros((6, 3)), cue_valid=np.ones(6, bool), joints=np.zeros((20, 3)),
                                bvh_frame=np.zeros(10), timings_ms={"ik": 0.5})
+
+    def identify_frame(self, timings_ms=None):
+        self.calls.append(("identify_frame", None))
 
     def predict(self, frame):
         self.calls.append(("predict", frame))
@@ -68,16 +74,19 @@ class _Tracker:
 
 @pytest.mark.parametrize("pose_first", [True, False])
 def test_fuse_and_publish_order(pose_first):
-    """Triggered rates: the pose leaves before predict runs and before any prediction (the
-    workers' deferred work they release cannot delay it); free-running: predictions first."""
+    """Triggered rates: the pose leaves before the identity and predict run and before any
+    prediction (the workers' deferred work they release cannot delay it); free-running:
+    predictions first. The identity always runs before the prediction (a switch moves the
+    tracks the prediction extrapolates)."""
     cams = ["a", "b"]
     log, calls = [], []
     keys = Keys("r")
     rt = SimpleNamespace(extra={}, meter=SimpleNamespace(add=lambda ms: calls.append(("meter", ms))))
+    pose_pub = _Pub(log, "pose", calls)
     pf = PendingFrame(3, 1000 * MS, 0, cues={"a": _cues("a", 3, {"total": 1.0, "w_pub": 2.0})}, t_last_ns=1002 * MS)
     tracker = _Tracker(cams, calls)
     pose = fuse_and_publish(tracker, keys, pf, cams, {c: _Pub(log, f"pred/{c}") for c in cams},
-                            _Pub(log, "pose"), rt, pose_first=pose_first)
+                            pose_pub, rt, pose_first=pose_first)
     order = [k for k, _ in log]
     assert sorted(order) == ["pose", "pred/a", "pred/b"]
     assert (order[0] == "pose") == pose_first and (order[-1] == "pose") == (not pose_first)
@@ -86,7 +95,9 @@ def test_fuse_and_publish_order(pose_first):
     assert decoded.timings_ms["w_pub"] == 2.0 and decoded.timings_ms["lib_ik"] == 0.5
     assert pose.frame == 3
     assert Prediction.from_msgpack(dict(log)["pred/b"]).prediction.frame == 4
-    assert [c for c in calls if c[0] != "meter"] == [("step", 3), ("predict", 4)]
+    steps = [c[0] for c in calls if c[0] != "meter"]
+    assert steps == (["fit_frame", "pose", "identify_frame", "predict"] if pose_first else
+                     ["fit_frame", "identify_frame", "predict", "pose"])
 
 
 def test_idle_gc_collects_only_when_asked():
