@@ -48,7 +48,7 @@ demo: $(STAMP) kernels
 	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
 
 test: system-deps setup
-	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q
+	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q --durations=15
 
 test-fast: setup
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q -m "not slow"
