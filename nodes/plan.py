@@ -47,24 +47,17 @@ class RunPlan:
     nodes: dict[str, NodeProc]
 
 
-def source_fps(kind: str, value: str, rig) -> float:
-    """The trigger base rate: a recording's fps (replay/fake), else the rig's (``rig_fps``)."""
+def source_timing(kind: str, value: str, rig) -> tuple[float, int | None]:
+    """(the trigger base rate, frames of one pass of a replay or None): a recording's fps and
+    length (replay/fake; fake sources run until stopped), else the rig's fps (``rig_fps``)."""
     if kind in ("replay", "fake"):
         from mocap_rt.io.recording import Recording
 
-        return float(Recording(value).fps)
+        with Recording(value) as rec:
+            return float(rec.fps), (int(rec.n_frames) if kind == "replay" else None)
     from nodes.node import rig_fps
 
-    return rig_fps(rig)
-
-
-def replay_frames(kind: str, value: str) -> int | None:
-    """Frames of one pass of a replay (None for other sources)."""
-    if kind != "replay":
-        return None
-    from mocap_rt.io.recording import Recording
-
-    return int(Recording(value).n_frames)
+    return rig_fps(rig), None
 
 
 def realtime_priority(requested: int | None, trigger_fps: float) -> tuple[int, bool]:
@@ -146,11 +139,12 @@ def plan_run(cfg: RunConfig) -> RunPlan:
     if not Path(cfg.rig_path).is_file():
         raise FileNotFoundError(f"--rig {cfg.rig_path}: no such file")
     rig = read_rig(cfg.rig_path)
-    base_fps = cfg.fps or source_fps(kind, value, rig)
+    rec_fps, n_replay = source_timing(kind, value, rig)
+    base_fps = cfg.fps or rec_fps
     trigger_fps = 0.0 if cfg.speed is None else base_fps * cfg.speed
     rt_priority, realtime = realtime_priority(cfg.rt_priority, trigger_fps)
     plan = RunPlan(rig, cfg.rig_name or rig_name_for(cfg.rig_path, rig), kind, base_fps, trigger_fps,
-                   rt_priority, realtime, replay_frames(kind, value), free_port(), {})
+                   rt_priority, realtime, n_replay, free_port(), {})
     commands = node_commands(cfg, plan)
     ports = {name: free_port() for name, _, _ in commands}
     common = ["--rig", str(cfg.rig_path), "--rig-name", plan.rig_name]
