@@ -88,7 +88,7 @@ STAGES = (("w_perceive_max", "perception of the slowest camera (duration)"),
           ("w_pub", "last cues published"),
           ("f_last_cue", "last cues received by fusion"),
           ("f_ready", "fusion started (frame complete)"),
-          ("step_ms", "BodyTracker.step (duration)"),
+          ("step_ms", "BodyTracker.fit_frame (duration; the identity runs after the pose)"),
           ("predict_ms", "BodyTracker.predict (duration)"),
           ("pred_pub_ms", "6 predictions published (duration)"))
 

@@ -3,8 +3,9 @@
 Seed digest A.6 (the PC that does 3D reconstruction and motion generation). For frame ``k``
 the node waits until every *live* camera answered or the deadline
 ``t_trigger + deadline_frac * period`` passed, whichever is first, then calls
-``BodyTracker.step`` with the cameras it has and publishes the ``Pose`` (which names the
-cameras used and the cameras missing), then the next frame's ``CuePrediction`` for every
+``BodyTracker.fit_frame`` with the cameras it has and publishes the ``Pose`` (which names the
+cameras used and the cameras missing), then runs ``identify_frame`` (left/right identity,
+off the latency path) and publishes the next frame's ``CuePrediction`` for every
 camera (a period before the next trigger; when free-running, predictions go first). A camera is live when its cues arrived
 within ``LIVENESS_S``; a killed worker therefore costs at most a deadline on a few frames,
 and a restarted one is counted again with its first answer.
