@@ -18,7 +18,10 @@ angles) whose hands, feet and head lie on the cues when they are reachable.
   its cue; the distance is clamped into ``[|L1 - L2|, L1 + L2]`` (fully stretched
   outside the reachable range). The elbow/knee lies in the plane of the limb and a
   pole direction; ``elbow_raise_deg`` / ``knee_open_deg`` rotate that pole about the
-  limb axis (the paper's experimental constants for Rz^l1).
+  limb axis (the paper's experimental constants for Rz^l1). An arm that this fixed pole
+  (the hanging arm's) puts out of its shoulder's range (a hand at the face, on the head) is
+  re-bent by ``limb_geometry._arm_pole`` in ``analytic_pose``; the pan and swivel searches
+  (``refine_pan``, ``refine_swivel``, ``fit.BodyFitter``) score the fixed poles.
 * The closed-form angles of eq. (6) are obtained by building each bone frame (Z along
   the bone, X the flexion axis normal to the limb plane) and reading the model's
   X-Y-Z angles between adjacent frames (B.5), so the result is exact for any preset.
@@ -32,12 +35,9 @@ import numpy as np
 from numba import njit
 
 from mocap_rt.body.kinematics import euler_xyz_from_matrix
+from mocap_rt.body.limb_geometry import _arm_pole, _cross, _frame, _nunit, _rot_about, _two_link, joint_violation
 from mocap_rt.body.skeleton import BodyModel
 from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, N_JOINTS, J
-
-# Relative reach below which a limb is treated as folded (avoids the |L1 - L2| singularity).
-MIN_REACH_FRAC = 0.05
-
 
 @dataclass(frozen=True)
 class AnalyticConfig:
@@ -46,6 +46,8 @@ class AnalyticConfig:
     elbow_raise_deg: float = 0.0    # pole of the elbow rotated outwards about the body axis
     elbow_down_deg: float = 60.0    # pole of the elbow tilted from backwards towards down
     knee_open_deg: float = 5.0      # pole of the knee rotated outwards from straight forward
+    elbow_pole_candidates: int = 12  # an arm out of range: its pole turned in 360/N deg steps (0 = off), _arm_pole
+    elbow_twist_cost: float = 0.1    # ... per degree of shoulder twist (Euler Z) vs degrees of limit violation
     feet_weight: float = 0.5        # weight of the feet's left->right vector for the pan
     hands_weight: float = 1.0       # weight of the hands' left->right vector
     walk_speed_mps: float = 0.4     # above this torso speed the walking direction counts
@@ -126,70 +128,17 @@ def pan_angle(axes: np.ndarray) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _cross(a, b):
-    out = np.empty(3)
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _nunit(v, fallback):
-    n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    if n > 1e-9 and np.isfinite(n):
-        return v / n
-    return fallback.copy()
-
-
-@njit(cache=True, nogil=True)
-def _two_link(root, goal, L1, L2, pole):
-    """Middle joint and reached end of a 2-link chain (A.5 direction + clamped distance).
-
-    The end always lies on the ray root -> goal, at the goal's distance clamped into
-    [|L1 - L2|, L1 + L2]; the middle joint bends towards ``pole`` (3,) (unit).
-    Returns (middle (3,), end (3,)) metres and the unit vectors u (root -> end) and w
-    (the bending direction, perpendicular to u), all (3,).
-    """
-    d = goal - root
-    dist = np.sqrt(d @ d)
-    down = np.array([0.0, 0.0, -1.0])
-    u = _nunit(d, -pole if abs(pole[2]) < 0.9 else down)
-    lo = max(abs(L1 - L2), MIN_REACH_FRAC * (L1 + L2))
-    hi = (L1 + L2) * (1 - 1e-9)
-    L = min(max(dist, lo), hi)
-    cos_a = min(1.0, max(-1.0, (L1 * L1 + L * L - L2 * L2) / (2 * L1 * L)))  # law of cosines at the root
-    w = pole - u * (pole @ u)
-    w = _nunit(w, _nunit(_cross(u, np.array([1.0, 0.0, 0.0])), np.array([0.0, 1.0, 0.0])))
-    mid = root + L1 * (cos_a * u + np.sqrt(1 - cos_a * cos_a) * w)
-    return mid, root + L * u, u, w
-
-
-@njit(cache=True, nogil=True)
-def _rot_about(axis, angle, v):
-    axis = axis / np.sqrt(axis @ axis)
-    c, s = np.cos(angle), np.sin(angle)
-    return v * c + _cross(axis, v) * s + axis * (axis @ v) * (1 - c)
-
-
-@njit(cache=True, nogil=True)
-def _frame(z, x_hint, out):
-    """Write into ``out`` (3, 3) the frame with Z along ``z`` and X nearest ``x_hint``."""
-    z = _nunit(z, np.array([0.0, 0.0, -1.0]))
-    x = x_hint - z * (x_hint @ z)
-    x = _nunit(x, _nunit(_cross(np.array([0.0, 1.0, 0.0]), z), np.array([1.0, 0.0, 0.0])))
-    y = _cross(z, x)
-    for i in range(3):
-        out[i, 0], out[i, 1], out[i, 2] = x[i], y[i], z[i]
-
-
-@njit(cache=True, nogil=True)
-def _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, swivel, R):
+def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R):
     """Fill the joint frames R (J, 3, 3); return the pelvis position (see analytic_pose).
 
-    swivel : (4,) radians, extra rotation of each limb's pole about the root -> goal line
-    (arm_l, arm_r, leg_l, leg_r).
+    poles : (5,) elbow_raise, elbow_down, knee_open (radians), elbow pole candidates (a
+    count, 0 = the fixed pole) and twist cost (``limb_args``); arm_lim : (2, 3, 2) radians,
+    the shoulders' (lo, hi) X-Y-Z limits (left, right). swivel : (4,) radians, extra
+    rotation of each limb's pole about the root -> goal line (arm_l, arm_r, leg_l, leg_r),
+    relative to the fixed pole; then an arm still out of range takes ``_arm_pole``'s.
     """
+    elbow_raise, elbow_down, knee_open = poles[0], poles[1], poles[2]
+    n_poles = int(poles[3])
     trunk, sh_half, upper_len, fore_len, hip_half, thigh, shank, foot_len = lengths
     right = axes[:, 0].copy()
     forward = axes[:, 1].copy()
@@ -217,6 +166,8 @@ def _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest
         d = cues[hand_c] - shoulder
         if swivel[s] != 0.0 and d @ d > 1e-12:
             pole = _rot_about(d, swivel[s], pole)
+        if n_poles > 1 and d @ d > 1e-12:
+            pole = _arm_pole(shoulder, cues[hand_c], upper_len, fore_len, pole, axes, arm_lim[s], n_poles, poles[4])
         elbow, hand, u, w = _two_link(shoulder, cues[hand_c], upper_len, fore_len, pole)
         x = _cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
         _frame(elbow - shoulder, x, R[jsh])
@@ -266,33 +217,46 @@ _LIMB_JOINTS = np.array([[J[f"{n}_{s}"] for n in ("shoulder", "elbow", "wrist", 
                          for s in ("l", "r")], dtype=np.int64)
 
 
+def limb_args(model: BodyModel, config: AnalyticConfig,
+              elbow_pole_search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The arrays ``_analytic`` takes: lengths (8,) metres (trunk, shoulder half width,
+    upper arm, forearm + hand, hip half width, thigh, shank, foot), poles (5,) (elbow
+    raise, elbow down, knee open radians; elbow pole candidates, 0 without
+    ``elbow_pole_search``; twist cost), arm_lim (2, 3, 2) radians (the shoulders' limits,
+    left then right) and foot_rest (3,) (the foot's rest direction, body frame)."""
+    L = model.lengths
+    lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
+                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
+    poles = np.array([np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
+                      np.radians(config.knee_open_deg),
+                      float(config.elbow_pole_candidates) if elbow_pole_search else 0.0, config.elbow_twist_cost])
+    arm_lim = np.ascontiguousarray(model.limits[_LIMB_JOINTS[:, 0]])
+    return lengths, poles, arm_lim, np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2])
+
+
 def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
                   config: AnalyticConfig = AnalyticConfig(),
                   swivel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Pose from the six cues: ``(root_pos (3,), angles (J, 3) radians)``.
 
     swivel : (4,) radians about each limb's root -> goal line (arm_l, arm_r, leg_l, leg_r)
-    added to the default poles (see ``refine_swivel``); default none.
+    added to the fixed poles (see ``refine_swivel``); default none. An arm then out of its
+    shoulder's range is re-bent (``AnalyticConfig.elbow_pole_candidates``, ``_arm_pole``).
 
     cues : (6, 3) metres, world, all finite (the tracker fills gaps from its filter).
     axes : (3, 3) body frame from ``body_axes`` (columns right, forward, up).
     """
-    L = model.lengths
-    lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
-                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
     R = np.empty((N_JOINTS, 3, 3))
-    foot_rest = np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2])
     pelvis = _analytic(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
-                       lengths, np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
-                       np.radians(config.knee_open_deg),
-                       foot_rest, _LIMB_JOINTS, np.zeros(4) if swivel is None else np.asarray(swivel, np.float64), R)
+                       *limb_args(model, config), _LIMB_JOINTS,
+                       np.zeros(4) if swivel is None else np.asarray(swivel, np.float64), R)
     angles = np.empty((N_JOINTS, 3))
     _angles_from_frames(model.parents, model.rest_local, model.dof, R, angles)
     return pelvis, angles
 
 
 @njit(cache=True, nogil=True)
-def _pan_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, swivel, parents,
+def _pan_search(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, parents,
                 rest_local, dof, lo, hi, step, n_steps, change_cost, out_axes):
     J = parents.shape[0]
     R = np.empty((J, 3, 3))
@@ -307,13 +271,11 @@ def _pan_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_re
         f = _cross(up, r)
         for i in range(3):
             axc[i, 0], axc[i, 1], axc[i, 2] = r[i], f[i], up[i]
-        _analytic(cues, axc, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, swivel, R)
+        _analytic(cues, axc, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R)
         _angles_from_frames(parents, rest_local, dof, R, ang)
         viol = 0.0
         for j in range(1, J):
-            for q in range(3):
-                if dof[j, q]:
-                    viol += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
+            viol += joint_violation(ang, lo, hi, dof, j)
         cost = np.degrees(viol) + change_cost * abs(np.degrees(a))
         if cost < best:
             best = cost
@@ -333,15 +295,11 @@ def refine_pan(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
     """
     if config.pan_search_deg <= 0 or config.pan_search_step_deg <= 0:
         return axes
-    L = model.lengths
-    lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
-                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
     out = np.empty((3, 3))
     n = int(config.pan_search_deg // config.pan_search_step_deg)
     _pan_search(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
-                lengths, np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
-                np.radians(config.knee_open_deg), np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2]),
-                _LIMB_JOINTS, np.zeros(4) if swivel is None else np.asarray(swivel, np.float64),
+                *limb_args(model, config, elbow_pole_search=False), _LIMB_JOINTS,
+                np.zeros(4) if swivel is None else np.asarray(swivel, np.float64),
                 model.parents, model.rest_local, model.dof,
                 np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
                 np.radians(config.pan_search_step_deg), n, config.pan_change_cost, out)
@@ -349,7 +307,7 @@ def refine_pan(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
 
 
 @njit(cache=True, nogil=True)
-def _swivel_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, parents,
+def _swivel_search(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
                    rest_local, dof, lo, hi, step, n_steps, prev, change_cost, prior_cost, out):
     J = parents.shape[0]
     R = np.empty((J, 3, 3))
@@ -359,17 +317,14 @@ def _swivel_search(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot
     for k in range(-n_steps, n_steps + 1):
         for i in range(4):
             sw[i] = prev[i] + step * k
-        _analytic(cues, axes, lengths, elbow_raise, elbow_down, knee_open, foot_rest, limb_joints, sw, R)
+        _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, sw, R)
         _angles_from_frames(parents, rest_local, dof, R, ang)
         for limb in range(4):
             side = limb % 2
             first = 0 if limb < 2 else 4
             viol = 0.0
             for m in range(first, first + 3):
-                j = limb_joints[side, m]
-                for q in range(3):
-                    if dof[j, q]:
-                        viol += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
+                viol += joint_violation(ang, lo, hi, dof, limb_joints[side, m])
             cost = np.degrees(viol) + change_cost * abs(np.degrees(step * k)) + prior_cost * abs(np.degrees(sw[limb]))
             if cost < best[limb]:
                 best[limb] = cost
@@ -388,14 +343,10 @@ def refine_swivel(model: BodyModel, cues: np.ndarray, axes: np.ndarray, previous
     prev = np.zeros(4) if previous is None else np.asarray(previous, dtype=np.float64)
     if config.swivel_search_deg <= 0 or config.swivel_step_deg <= 0:
         return prev.copy()
-    L = model.lengths
-    lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
-                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
     out = prev.copy()
     _swivel_search(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
-                   lengths, np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
-                   np.radians(config.knee_open_deg), np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2]),
-                   _LIMB_JOINTS, model.parents, model.rest_local, model.dof,
+                   *limb_args(model, config, elbow_pole_search=False), _LIMB_JOINTS, model.parents,
+                   model.rest_local, model.dof,
                    np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
                    np.radians(config.swivel_step_deg), int(config.swivel_search_deg // config.swivel_step_deg),
                    prev, config.swivel_change_cost, config.swivel_prior_cost, out)

@@ -26,12 +26,13 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mocap_rt.body.analytic import _LIMB_JOINTS, AnalyticConfig, _analytic, _angles_from_frames, _cross, _rot_about
+from mocap_rt.body.analytic import _LIMB_JOINTS, AnalyticConfig, _analytic, _angles_from_frames, limb_args
 from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, foot_axis_cost
 from mocap_rt.body.kinematics import fk_kernel
+from mocap_rt.body.limb_geometry import _cross, _rot_about, joint_violation
 from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SilhouetteTargets, body_capsules, capsules_cost, \
     pose_points
-from mocap_rt.body.skeleton import J, BodyModel
+from mocap_rt.body.skeleton import BodyModel
 from mocap_rt.studio.body_map import POINT_NAMES
 
 
@@ -52,18 +53,16 @@ class FitConfig:
 
 
 @njit(cache=True, nogil=True)
-def _evaluate(cues, axes, swivel, lengths, poles, foot_rest, limb_joints, parents, offsets, rest_local, dof, lo, hi,
-              foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot,
-              points, A, B):
+def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
+              lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w_sil, w_foot, R, ang, pos,
+              rot, points, A, B):
     """(limit violation degrees, silhouette cost cm^2, foot-axis cost cm^2) of the analytic pose
     for ``axes``, ``swivel``; a term whose weight is 0 is not computed (0)."""
-    pelvis = _analytic(cues, axes, lengths, poles[0], poles[1], poles[2], foot_rest, limb_joints, swivel, R)
+    pelvis = _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R)
     _angles_from_frames(parents, rest_local, dof, R, ang)
     viol = 0.0
     for j in range(1, parents.shape[0]):
-        for q in range(3):
-            if dof[j, q]:
-                viol += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
+        viol += joint_violation(ang, lo, hi, dof, j)
     sil = 0.0
     foot = 0.0
     if w_sil > 0.0 or w_foot > 0.0:
@@ -78,9 +77,9 @@ def _evaluate(cues, axes, swivel, lengths, poles, foot_rest, limb_joints, parent
 
 
 @njit(cache=True, nogil=True)
-def _fit(cues, axes0, swivel_prev, lengths, poles, foot_rest, limb_joints, parents, offsets, rest_local, dof, lo, hi,
-         foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w, pan_offsets, n_refine, n_sw, sw_step,
-         out_axes, out_swivel, out_terms):
+def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
+         lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w, pan_offsets, n_refine, n_sw,
+         sw_step, out_axes, out_swivel, out_terms):
     """Coordinate search (see the module doc); writes the best axes (3, 3), swivel (4,)
     and terms (total, violation, silhouette, foot axis) into the ``out_*`` arrays."""
     nj = parents.shape[0]
@@ -114,9 +113,9 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, foot_rest, limb_joints, paren
             fw = _cross(up, r)
             for i in range(3):
                 axc[i, 0], axc[i, 1], axc[i, 2] = r[i], fw[i], up[i]
-            viol, sil, foot = _evaluate(cues, axc, sw, lengths, poles, foot_rest, limb_joints, parents, offsets,
-                                        rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline,
-                                        n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B)
+            viol, sil, foot = _evaluate(cues, axc, sw, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
+                                        offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
+                                        outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B)
             cost = viol + w_sil * sil + w_foot * foot + c_pan * abs(np.degrees(a)) + base
             if cost < best:
                 best = cost
@@ -133,9 +132,9 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, foot_rest, limb_joints, paren
                 continue
             sw[:] = out_swivel
             sw[limb] = swivel_prev[limb] + sw_step * k
-            viol, sil, foot = _evaluate(cues, out_axes, sw, lengths, poles, foot_rest, limb_joints, parents, offsets,
-                                        rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline,
-                                        n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B)
+            viol, sil, foot = _evaluate(cues, out_axes, sw, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
+                                        offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
+                                        outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B)
             cost = viol + w_sil * sil + w_foot * foot + pan_cost
             for i in range(4):
                 cost += c_prior * abs(np.degrees(sw[i])) + c_change * abs(np.degrees(sw[i] - swivel_prev[i]))
@@ -166,15 +165,13 @@ class BodyFitter:
                  config: FitConfig = FitConfig()) -> None:
         if model.preset != "paper":
             raise ValueError("BodyFitter works on the analytic ('paper') model")
-        L = model.lengths
         self.config = config
-        self._lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
-                                  L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
-        self._poles = np.radians([analytic.elbow_raise_deg, analytic.elbow_down_deg, analytic.knee_open_deg])
-        self._model_args = (np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2]), _LIMB_JOINTS, model.parents,
+        # lengths, the fixed poles (the search is the final pose's, see analytic._arm_pole), arm limits,
+        # foot rest direction (analytic.limb_args), then the model's arrays
+        self._model_args = (*limb_args(model, analytic, elbow_pole_search=False), _LIMB_JOINTS, model.parents,
                             model.offsets, model.rest_local, model.dof,
                             np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
-                            float(np.radians(L.foot_pitch_deg)), CAPSULE_RADII_M)
+                            float(np.radians(model.lengths.foot_pitch_deg)), CAPSULE_RADII_M)
 
     def fit(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
             targets: SilhouetteTargets | None, search_swivel: bool = True, pan_search_deg: float | None = None,
@@ -205,8 +202,8 @@ class BodyFitter:
                       c.swivel_prior_cost, c.foot_axis_weight if use_feet else 0.0])
         n_sw = int(c.swivel_search_deg // c.swivel_step_deg) if (search_swivel and c.swivel_step_deg > 0) else 0
         sw0 = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
-        _fit(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64), sw0, self._lengths,
-             self._poles, *self._model_args, *sil_args, feet2, w, offsets,
+        _fit(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64), sw0, *self._model_args,
+             *sil_args, feet2, w, offsets,
              c.pan_refine if pan_refine is None else pan_refine, n_sw, np.radians(c.swivel_step_deg), out_axes, out_sw,
              terms)
         return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]), float(terms[3]))

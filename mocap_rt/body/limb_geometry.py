@@ -1,0 +1,168 @@
+"""Numba geometry of the analytic IK's limbs (``body.analytic``) and their joint limits.
+
+``_two_link`` places the middle joint of a two-link limb (A.5: direction + clamped
+distance, bent towards a pole), ``_frame`` builds a bone frame, ``joint_violation`` measures
+how far a joint's angles leave the range-of-motion table (the fit's measure), and
+``_arm_pole`` re-bends an arm that the fixed elbow pole puts out of range
+(``AnalyticConfig.elbow_pole_candidates``). Vectors are (3,) float64, world frame; angles
+radians; lengths metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# Relative reach below which a limb is treated as folded (avoids the |L1 - L2| singularity).
+MIN_REACH_FRAC = 0.05
+
+
+@njit(cache=True, nogil=True)
+def _cross(a, b):
+    out = np.empty(3)
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _nunit(v, fallback):
+    n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if n > 1e-9 and np.isfinite(n):
+        return v / n
+    return fallback.copy()
+
+
+@njit(cache=True, nogil=True)
+def _two_link(root, goal, L1, L2, pole):
+    """Middle joint and reached end of a 2-link chain (A.5 direction + clamped distance).
+
+    The end always lies on the ray root -> goal, at the goal's distance clamped into
+    [|L1 - L2|, L1 + L2]; the middle joint bends towards ``pole`` (3,) (unit).
+    Returns (middle (3,), end (3,)) metres and the unit vectors u (root -> end) and w
+    (the bending direction, perpendicular to u), all (3,).
+    """
+    d = goal - root
+    dist = np.sqrt(d @ d)
+    down = np.array([0.0, 0.0, -1.0])
+    u = _nunit(d, -pole if abs(pole[2]) < 0.9 else down)
+    lo = max(abs(L1 - L2), MIN_REACH_FRAC * (L1 + L2))
+    hi = (L1 + L2) * (1 - 1e-9)
+    L = min(max(dist, lo), hi)
+    cos_a = min(1.0, max(-1.0, (L1 * L1 + L * L - L2 * L2) / (2 * L1 * L)))  # law of cosines at the root
+    w = pole - u * (pole @ u)
+    w = _nunit(w, _nunit(_cross(u, np.array([1.0, 0.0, 0.0])), np.array([0.0, 1.0, 0.0])))
+    mid = root + L1 * (cos_a * u + np.sqrt(1 - cos_a * cos_a) * w)
+    return mid, root + L * u, u, w
+
+
+@njit(cache=True, nogil=True)
+def _rot_about(axis, angle, v):
+    axis = axis / np.sqrt(axis @ axis)
+    c, s = np.cos(angle), np.sin(angle)
+    return v * c + _cross(axis, v) * s + axis * (axis @ v) * (1 - c)
+
+
+@njit(cache=True, nogil=True)
+def _frame(z, x_hint, out):
+    """Write into ``out`` (3, 3) the frame with Z along ``z`` and X nearest ``x_hint``."""
+    z = _nunit(z, np.array([0.0, 0.0, -1.0]))
+    x = x_hint - z * (x_hint @ z)
+    x = _nunit(x, _nunit(_cross(np.array([0.0, 1.0, 0.0]), z), np.array([1.0, 0.0, 0.0])))
+    y = _cross(z, x)
+    for i in range(3):
+        out[i, 0], out[i, 1], out[i, 2] = x[i], y[i], z[i]
+
+
+@njit(cache=True, nogil=True)
+def joint_violation(ang, lo, hi, dof, j):
+    """Limit violation (radians) of joint j: how far its moving angles ``ang`` (J, 3) lie
+    outside ``lo``, ``hi`` (J, 3) radians (``dof`` (J, 3) bool), summed."""
+    v = 0.0
+    for q in range(3):
+        if dof[j, q]:
+            v += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
+    return v
+
+
+@njit(cache=True, nogil=True)
+def _range_excess(a, lo, hi):
+    return max(0.0, lo - a) + max(0.0, a - hi)
+
+
+@njit(cache=True, nogil=True)
+def _viol3(x, y, z, lo, hi):
+    """Limit violation (radians) of a 3-DOF rotation with X-Y-Z angles (x, y, z), limits lo,
+    hi (3,): the smaller over its two decompositions, (x, y, z) with |y| <= pi/2
+    (``euler_xyz_from_matrix``) and (x + pi, pi - y, z + pi) (wrapped); an arm raised
+    sideways above the shoulder (abduction > 90 deg) has only the second name."""
+    v1 = _range_excess(x, lo[0], hi[0]) + _range_excess(y, lo[1], hi[1]) + _range_excess(z, lo[2], hi[2])
+    x2 = x + np.pi if x <= 0.0 else x - np.pi
+    y2 = np.pi - y if y >= 0.0 else -np.pi - y
+    z2 = z + np.pi if z <= 0.0 else z - np.pi
+    return min(v1, _range_excess(x2, lo[0], hi[0]) + _range_excess(y2, lo[1], hi[1]) + _range_excess(z2, lo[2], hi[2]))
+
+
+@njit(cache=True, nogil=True)
+def _arm_pole(shoulder, hand, L1, L2, pole, axes, lim, n, twist_cost):
+    """The elbow's pole (3,) for the two-link arm shoulder -> hand (metres, world; L1, L2
+    the upper arm and forearm + hand): ``pole`` while its solution keeps the shoulder
+    within ``lim`` (3, 2) radians (``_viol3``: either name of the rotation), else ``pole``
+    turned about shoulder -> hand by the k * 360/n deg (k < n) that minimises the shoulder's
+    violation (deg) + ``twist_cost`` * |twist| (deg; the Euler Z of the |Y| <= 90 deg name):
+    among arms within the limits, the one nearest the neutral rotation. The elbow's flexion
+    is fixed by the reach, not the pole, so the shoulder decides alone. ``axes`` (3, 3)
+    the trunk's (right, forward, up) columns. Why: the fixed pole ("backwards and down") is
+    the hanging arm's; a hand at the face or on the head bends the elbow out or forwards.
+
+    No arrays per candidate: with u = unit(hand - shoulder), w0 the pole's part normal to
+    u and v0 = u x w0, ``_two_link`` bent towards the pole turned by t has the upper arm
+    z = ca u + sa w, w = cos t w0 + sin t v0, and ``_frame`` gives x = w x u = sin t w0 -
+    cos t v0, y = z x x = ca w - sa u (ca, sa: cosine and sine of the angle at the shoulder);
+    the shoulder's matrix relative to the trunk at rest (columns right, -forward, -up) is
+    read from their dot products with the body axes, as ``euler_xyz_from_matrix`` does.
+    """
+    d = hand - shoulder
+    dist = np.sqrt(d @ d)
+    w0 = pole - d * ((pole @ d) / max(dist * dist, 1e-300))
+    nw = np.sqrt(w0 @ w0)
+    if dist < 1e-9 or nw < 1e-9:
+        return pole
+    u = d / dist
+    w0 = w0 / nw
+    v0 = _cross(u, w0)
+    L = min(max(dist, max(abs(L1 - L2), MIN_REACH_FRAC * (L1 + L2))), (L1 + L2) * (1 - 1e-9))
+    ca = min(1.0, max(-1.0, (L1 * L1 + L * L - L2 * L2) / (2 * L1 * L)))
+    sa = np.sqrt(1 - ca * ca)
+    # e . (u, w0, v0) for e = right, -forward, -up (the rest frame's columns)
+    eu, ew, ev = np.empty(3), np.empty(3), np.empty(3)
+    for a in range(3):
+        sg = 1.0 if a == 0 else -1.0
+        eu[a] = sg * (axes[0, a] * u[0] + axes[1, a] * u[1] + axes[2, a] * u[2])
+        ew[a] = sg * (axes[0, a] * w0[0] + axes[1, a] * w0[1] + axes[2, a] * w0[2])
+        ev[a] = sg * (axes[0, a] * v0[0] + axes[1, a] * v0[1] + axes[2, a] * v0[2])
+    best, best_k = np.inf, 0
+    cd, sd = np.cos(2.0 * np.pi / n), np.sin(2.0 * np.pi / n)
+    c, s = 1.0, 0.0
+    for k in range(n):
+        if k > 0:
+            c, s = c * cd - s * sd, s * cd + c * sd
+        m02 = ca * eu[0] + sa * (c * ew[0] + s * ev[0])          # M[a, 2] = e_a . z
+        m12 = ca * eu[1] + sa * (c * ew[1] + s * ev[1])
+        m22 = ca * eu[2] + sa * (c * ew[2] + s * ev[2])
+        sb = min(1.0, max(-1.0, m02))
+        ay = np.arcsin(sb)
+        if abs(sb) < 1.0 - 1e-12:
+            ax = np.arctan2(-m12, m22)
+            az = np.arctan2(-(ca * (c * ew[0] + s * ev[0]) - sa * eu[0]), s * ew[0] - c * ev[0])  # -M01, M00
+        else:
+            ax = np.arctan2(ca * (c * ew[2] + s * ev[2]) - sa * eu[2], ca * (c * ew[1] + s * ev[1]) - sa * eu[1])
+            az = 0.0
+        viol = _viol3(ax, ay, az, lim[:, 0], lim[:, 1])
+        if k == 0 and viol == 0.0:
+            return pole
+        cost = np.degrees(viol) + twist_cost * np.degrees(abs(az))
+        if cost < best:
+            best, best_k = cost, k
+    return _rot_about(d, 2.0 * np.pi * best_k / n, pole)
