@@ -306,6 +306,7 @@ class BodyTracker:
         valid = np.isfinite(X).all(axis=1)
         t_id = time.perf_counter()
         timings["triangulate"] = (t_id - ts) * 1e3
+        right_before = self._right          # the heading reference this frame's fit starts from
         scored = self._identity_input(X, valid, t_s, targets)
         if scored is not None and self.identity.frames < self.config.identity.acquire_frames:
             # a track's first frames: its identity is being acquired, and a cold start's first
@@ -336,13 +337,15 @@ class BodyTracker:
             pan = pan_angle(axes)
             self._last_pose = (root, angles)
             joint_valid = joint_validity(have)
-        self._maybe_calibrate(np.where(valid[:, None], X, np.nan), axes)
+        calib_sample = (np.where(valid[:, None], X, np.nan), axes)
+        if scored is None:
+            self._maybe_calibrate(*calib_sample)
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
         row = (self.bvh_row(*self._last_pose) if self._last_pose is not None
                else bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
         self._update_pair(cues_ik)
-        self._pending = None if scored is None else (scored, cues_ik, feet)
+        self._pending = None if scored is None else (scored, cues_ik, feet, right_before, calib_sample)
         timings["total"] = (time.perf_counter() - t0) * 1e3
         cams_used = tuple(self._names[c] for c in range(len(self._names)) if used[c].any())
         pair = tuple(self._names[i] for i in self._pair) if (self.config.views == "pair" and self._pair) else ()
@@ -374,13 +377,18 @@ class BodyTracker:
         t0 = time.perf_counter()
         pending, self._pending = self._pending, None
         if pending is not None:
-            scored, cues_ik, feet = pending
+            scored, cues_ik, feet, right_before, (X, axes) = pending
             k = self._score_identity(*scored)
+            X = X if k < 0 else swap_pairs(X, k)
             if k >= 0 and np.isfinite(cues_ik[[C_HEAD, C_TORSO]]).all():
-                # refit the frame with the new labels: the next frame starts from the heading
-                # and swivels it would have had if this frame had been labelled so
-                self.solve_pose(swap_pairs(cues_ik, k), self._vel, scored[2],
-                                None if feet is None else swap_pairs(feet, k))
+                # refit the frame with the new labels from the heading reference its fit started
+                # from (turned for a mirror): the next frame starts from the state it would have
+                # had if this frame had been labelled so
+                if right_before is not None:
+                    self._right = -right_before if ALTERNATIVES[k] == "mirror" else right_before
+                axes = self.solve_pose(swap_pairs(cues_ik, k), self._vel, scored[2],
+                                       None if feet is None else swap_pairs(feet, k))[3]
+            self._maybe_calibrate(X, axes)      # the bone-length sample, with the labels settled
         if timings_ms is not None:
             ms = (time.perf_counter() - t0) * 1e3
             timings_ms["identify"] = timings_ms.get("identify", 0.0) + ms

@@ -1,19 +1,29 @@
-"""A short studio recording of a backwards walk, rendered once per session (identity tests)."""
+"""Short studio recordings of a backwards walk, rendered once per session (identity tests)."""
 
 import pytest
 
 BACKWARDS_WALK_FRAMES = 45
 
 
-@pytest.fixture(scope="session")
-def backwards_walk(tmp_path_factory, data_dir):
-    """cmu_131_01 played backwards (walking backwards), 1.5 s from 2.0 s, 6-camera ring at
-    320x240, 30 fps, with truth and silhouettes: the recording directory."""
+def _backwards_walk(tmp_path_factory, data_dir, frames: int):
     from mocap_rt.studio.synth import make_rig, synthesize
     from mocap_rt.studio.variants import load_motion
 
     bvh, name = load_motion(data_dir / "bvh" / "cmu" / "cmu_131_01_start_walk_stop.bvh", "reversed")
     out = tmp_path_factory.mktemp("backwards_walk") / "rec"
-    synthesize(bvh, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=BACKWARDS_WALK_FRAMES / 30.0,
+    synthesize(bvh, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=frames / 30.0,
                start_s=2.0, seed=3, motion_name=name)
     return out
+
+
+@pytest.fixture(scope="session")
+def backwards_walk(tmp_path_factory, data_dir):
+    """cmu_131_01 played backwards (walking backwards), 1.5 s from 2.0 s, 6-camera ring at
+    320x240, 30 fps, with truth and silhouettes: the recording directory."""
+    return _backwards_walk(tmp_path_factory, data_dir, BACKWARDS_WALK_FRAMES)
+
+
+@pytest.fixture(scope="session")
+def backwards_walk_3s(tmp_path_factory, data_dir):
+    """The same walk for 3 s (a feet swap made mid-clip is put right by its 46th frame)."""
+    return _backwards_walk(tmp_path_factory, data_dir, 2 * BACKWARDS_WALK_FRAMES)

@@ -69,43 +69,62 @@ def test_decide_switches_on_consistent_evidence_and_never_on_noise():
     assert ALTERNATIVES.index("hands") in hits
 
 
-def _truth_run(rec_dir, swap_feet: bool):
+def _truth_run(rec_dir, swap_feet: bool, swap_tracks_at: int | None = None):
     """Truth 2D cues (+1 px noise) and truth silhouettes through BodyTracker, optionally with
-    the feet labelled the wrong way round in every view. Returns (joints (F, 20, 3), truth joints,
-    foot cue errors (F, 2) m)."""
+    the feet labelled the wrong way round in every view, or with the tracker's own foot tracks
+    exchanged before frame ``swap_tracks_at``. Returns (joints (F, 20, 3), truth joints, foot cue
+    errors (F, 2) m, identity switches made up to each frame (F,))."""
     rec = Recording(rec_dir)
     truth = rec.truth
     names = list(rec.rig.names)
     widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
     tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
     rng = np.random.default_rng(0)
-    joints, err = [], []
+    joints, err, switches = [], [], []
     for f in range(rec.n_frames):
         cues = truth_camera_cues(truth, names, f, f, 1.0, rng, widths)
         if swap_feet:
             for cc in cues.values():
                 for arr in (cc.xy, cc.cov, cc.area, cc.confidence):
                     arr[[FL, FR]] = arr[[FR, FL]]
+        if f == swap_tracks_at:
+            tracker.filter.swap(FL, FR)
         r = tracker.step(f, cues)
         joints.append(r.joints)
         err.append(np.linalg.norm(r.cues_ik[[FL, FR]] - truth["cues"][f][[FL, FR]], axis=1))
+        switches.append(tracker.identity.switches)
     rec.close()
-    return np.array(joints), np.asarray(truth["joints"]), np.array(err)
+    return np.array(joints), np.asarray(truth["joints"]), np.array(err), np.array(switches)
 
 
 def test_feet_labelled_the_wrong_way_in_every_view_are_put_right(backwards_walk):
     """Every view agrees on the wrong feet (what a cold start's "facing the camera" guess gives
     for a person seen from behind): the crossed legs fit neither the silhouettes nor the joint
     limits, so the feet hypothesis wins and the labels are exchanged for good."""
-    _, _, err = _truth_run(backwards_walk, swap_feet=True)
+    _, _, err, _ = _truth_run(backwards_walk, swap_feet=True)
     assert np.median(err[:2]) > 0.1                           # mirrored at first ...
     assert np.percentile(err[ACQUIRE_FRAMES:], 95) < 0.03     # ... then on the right feet for good
+
+
+def test_feet_tracks_exchanged_mid_track_are_put_right_from_the_next_frame(backwards_walk_3s):
+    """After the identity was acquired the feet tracks are exchanged (what a crossing that
+    perception followed leaves): every view then agrees with the wrong prediction, and only
+    the hypotheses can see it. The switch is decided after the frame's pose went out
+    (``identify_frame``): that frame still has the wrong feet, the next ones the right."""
+    at = ACQUIRE_FRAMES + 15
+    _, _, err, switches = _truth_run(backwards_walk_3s, swap_feet=False, swap_tracks_at=at)
+    assert np.percentile(err[ACQUIRE_FRAMES:at], 95) < 0.03     # right before ...
+    assert np.median(err[at:at + 2]) > 0.1                       # ... wrong at once ...
+    s = at + int(np.argmax(switches[at:] > switches[at - 1]))    # ... until the frame that switched
+    assert switches[s] > switches[at - 1], "never switched back"
+    assert err[s].min() > 0.1                                    # its own pose: still wrong
+    assert np.percentile(err[s + 1:], 95) < 0.03                 # from the next frame: right for good
 
 
 def test_walking_backwards_is_neither_mirrored_nor_turned_round(backwards_walk):
     """The walk backwards with right labels: the walking direction must not turn the body
     round (the issue-5 behaviour faced the body where it walked and mirrored it)."""
-    joints, tj, _ = _truth_run(backwards_walk, swap_feet=False)
+    joints, tj, _, _ = _truth_run(backwards_walk, swap_feet=False)
     mir = mirrored_frames(joints, tj)
     herr = np.abs(wrap_deg(heading_deg(joints) - heading_deg(tj)))
     assert np.nansum(mir[ACQUIRE_FRAMES:]) == 0
