@@ -35,6 +35,17 @@ def _nunit(v, fallback):
 
 
 @njit(cache=True, nogil=True)
+def _reach(dist, L1, L2):
+    """(L, cos_a): the distance ``dist`` (m) from a two-link limb's root to its goal clamped into
+    the reachable [|L1 - L2|, L1 + L2] (folded no tighter than ``MIN_REACH_FRAC``), and the
+    cosine of the first link's angle to the root -> end line (law of cosines at the root)."""
+    lo = max(abs(L1 - L2), MIN_REACH_FRAC * (L1 + L2))
+    hi = (L1 + L2) * (1 - 1e-9)
+    L = min(max(dist, lo), hi)
+    return L, min(1.0, max(-1.0, (L1 * L1 + L * L - L2 * L2) / (2 * L1 * L)))
+
+
+@njit(cache=True, nogil=True)
 def _two_link(root, goal, L1, L2, pole):
     """Middle joint and reached end of a 2-link chain (A.5 direction + clamped distance).
 
@@ -47,10 +58,7 @@ def _two_link(root, goal, L1, L2, pole):
     dist = np.sqrt(d @ d)
     down = np.array([0.0, 0.0, -1.0])
     u = _nunit(d, -pole if abs(pole[2]) < 0.9 else down)
-    lo = max(abs(L1 - L2), MIN_REACH_FRAC * (L1 + L2))
-    hi = (L1 + L2) * (1 - 1e-9)
-    L = min(max(dist, lo), hi)
-    cos_a = min(1.0, max(-1.0, (L1 * L1 + L * L - L2 * L2) / (2 * L1 * L)))  # law of cosines at the root
+    L, cos_a = _reach(dist, L1, L2)
     w = pole - u * (pole @ u)
     w = _nunit(w, _nunit(_cross(u, np.array([1.0, 0.0, 0.0])), np.array([0.0, 1.0, 0.0])))
     mid = root + L1 * (cos_a * u + np.sqrt(1 - cos_a * cos_a) * w)
@@ -76,19 +84,20 @@ def _frame(z, x_hint, out):
 
 
 @njit(cache=True, nogil=True)
+def _range_excess(a, lo, hi):
+    """How far (radians) the angle ``a`` lies outside [lo, hi] (0 inside)."""
+    return max(0.0, lo - a) + max(0.0, a - hi)
+
+
+@njit(cache=True, nogil=True)
 def joint_violation(ang, lo, hi, dof, j):
     """Limit violation (radians) of joint j: how far its moving angles ``ang`` (J, 3) lie
     outside ``lo``, ``hi`` (J, 3) radians (``dof`` (J, 3) bool), summed."""
     v = 0.0
     for q in range(3):
         if dof[j, q]:
-            v += max(0.0, lo[j, q] - ang[j, q]) + max(0.0, ang[j, q] - hi[j, q])
+            v += _range_excess(ang[j, q], lo[j, q], hi[j, q])
     return v
-
-
-@njit(cache=True, nogil=True)
-def _range_excess(a, lo, hi):
-    return max(0.0, lo - a) + max(0.0, a - hi)
 
 
 @njit(cache=True, nogil=True)
@@ -132,8 +141,7 @@ def _arm_pole(shoulder, hand, L1, L2, pole, axes, lim, n, twist_cost):
     u = d / dist
     w0 = w0 / nw
     v0 = _cross(u, w0)
-    L = min(max(dist, max(abs(L1 - L2), MIN_REACH_FRAC * (L1 + L2))), (L1 + L2) * (1 - 1e-9))
-    ca = min(1.0, max(-1.0, (L1 * L1 + L * L - L2 * L2) / (2 * L1 * L)))
+    _, ca = _reach(dist, L1, L2)
     sa = np.sqrt(1 - ca * ca)
     # e . (u, w0, v0) for e = right, -forward, -up (the rest frame's columns)
     eu, ew, ev = np.empty(3), np.empty(3), np.empty(3)
