@@ -295,19 +295,20 @@ class BodyTracker:
                 else None)
         ts = time.perf_counter()
         timings["silhouettes"] = (ts - t0) * 1e3
+        pred = self.filter.predict_at(t_s)          # (6, 3), NaN for tracks not alive
         if self.config.fix_left_right:
-            ref = self.filter.predict_at(t_s) if self.filter.alive.any() else None
+            ref = pred if self.filter.alive.any() else None
             uv0, (uv, w, n_fixed) = uv, fix_left_right(self._tri, self._proj, uv, w, ref)
             self.relabelled += n_fixed
             feet = follow_relabelling(feet, uv0, uv) if (feet is not None and n_fixed) else feet
         X, used = self.triangulate(uv, w)
         valid = np.isfinite(X).all(axis=1)
-        X = reject_duplicates(X, valid, used, self.filter.predict_at(t_s), self.config.duplicate_m)
+        X = reject_duplicates(X, valid, used, pred, self.config.duplicate_m)
         valid = np.isfinite(X).all(axis=1)
         t_id = time.perf_counter()
         timings["triangulate"] = (t_id - ts) * 1e3
         right_before = self._right          # the heading reference this frame's fit starts from
-        scored = self._identity_input(X, valid, t_s, targets)
+        scored = self._identity_input(X, valid, pred, targets)
         if scored is not None and self.identity.frames < self.config.identity.acquire_frames:
             # a track's first frames: its identity is being acquired, and a cold start's first
             # pose should not wait a frame for it, so the hypotheses are scored before the fit
@@ -352,17 +353,17 @@ class BodyTracker:
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
                             root, angles, pan, pair, cues_ik, axes, joint_valid)
 
-    def _identity_input(self, X: np.ndarray, valid: np.ndarray, t_s: float, targets: SilhouetteTargets | None
+    def _identity_input(self, X: np.ndarray, valid: np.ndarray, pred: np.ndarray, targets: SilhouetteTargets | None
                         ) -> tuple[np.ndarray, np.ndarray | None, SilhouetteTargets | None] | None:
         """What the identity scores, taken before the frame changes the state: the cues (6, 3)
-        (measured, else predicted), the previous frame's body axes and the silhouettes; None
-        when there is nothing to score. A body that (re)starts acquires afresh."""
+        (measured, else the filter's prediction ``pred`` (6, 3)), the previous frame's body axes
+        and the silhouettes; None when there is nothing to score. A body that (re)starts
+        acquires afresh."""
         if not self.filter.alive[[C_HEAD, C_TORSO]].all():
             self.identity.reset()        # the body (re)starts: acquire afresh, heading unknown
             self._axes = None
         if not self.config.identity.enabled:
             return None
-        pred = self.filter.predict_at(t_s) if self.filter.alive.any() else np.full_like(X, np.nan)
         cues = np.where(valid[:, None], X, pred)
         if not np.isfinite(cues[[C_HEAD, C_TORSO]]).all():
             return None
