@@ -10,6 +10,7 @@ dataclass from a table, unknown keys and wrong types are errors naming file and 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import types
@@ -217,6 +218,24 @@ def dataclass_from_dict(cls: type[T], table: dict, where: str, base: T | None = 
         return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
     except (TypeError, ValueError) as exc:
         raise FileFormatError(f"{where}: {exc}") from None
+
+
+@functools.cache
+def _path_fields(cls: type) -> tuple[str, ...]:
+    """The fields of the dataclass ``cls`` annotated ``Path`` or ``Path | None``."""
+    hints = typing.get_type_hints(cls)
+    return tuple(f.name for f in dataclasses.fields(cls)
+                 if hints[f.name] is Path or (typing.get_origin(hints[f.name]) in (typing.Union, types.UnionType)
+                                              and Path in typing.get_args(hints[f.name])))
+
+
+def coerce_paths(obj) -> None:
+    """Make every ``Path`` field of the (frozen) dataclass instance ``obj`` that holds a str a
+    ``Path`` (for ``__post_init__``: a TOML file or a caller gives paths as strings)."""
+    for name in _path_fields(type(obj)):
+        value = getattr(obj, name)
+        if isinstance(value, str):
+            object.__setattr__(obj, name, Path(value))
 
 
 def load_dataclass(cls: type[T], path: str | Path, table: str | None = None,

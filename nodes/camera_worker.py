@@ -61,12 +61,6 @@ class WorkerSettings(NodeSettings):
     cv_threads: int = 1
     standby: bool = False
 
-    def __post_init__(self) -> None:
-        NodeSettings.__post_init__(self)
-        for name in ("backgrounds_from", "perception_config"):
-            if getattr(self, name) is not None:
-                object.__setattr__(self, name, Path(getattr(self, name)))
-
 
 class TriggerSlot:
     """The newest trigger, filled by the Zenoh callback; older unread ones count as drops."""

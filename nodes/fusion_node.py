@@ -57,8 +57,6 @@ class FusionSettings(NodeSettings):
         NodeSettings.__post_init__(self)
         if not (math.isfinite(self.deadline_frac) and 0.0 < self.deadline_frac <= 1.0):
             raise ValueError(f"deadline_frac must be in (0, 1], got {self.deadline_frac}")
-        if self.bones is not None:
-            object.__setattr__(self, "bones", Path(self.bones))
 
 
 def make_tracker(rig, fps: float, bone_lengths=None):

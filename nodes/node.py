@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, TypeVar
 
+from mocap_rt.config import coerce_paths
 from nodes.transport import add_zenoh_args
 
 DEFAULT_FPS = 30.0          # a rig's frame rate when its metadata has none
@@ -47,9 +48,7 @@ class NodeSettings:
     shm: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("rig", "zenoh_config"):
-            if getattr(self, name) is not None:
-                object.__setattr__(self, name, Path(getattr(self, name)))
+        coerce_paths(self)          # every Path field, the subclasses' too
         for name in ("listen", "connect"):
             object.__setattr__(self, name, tuple(getattr(self, name) or ()))
         if not 0 <= self.rt_priority <= 99:

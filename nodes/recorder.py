@@ -62,11 +62,6 @@ class RecorderSettings(NodeSettings):
     fps: float | None = None
     raw: bool = False
 
-    def __post_init__(self) -> None:
-        NodeSettings.__post_init__(self)
-        if self.out is not None:
-            object.__setattr__(self, "out", Path(self.out))
-
 
 class PoseLog:
     """Poses accumulated in memory and snapshotted to ``poses.npz`` atomically.

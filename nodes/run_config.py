@@ -6,6 +6,7 @@ import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mocap_rt.config import coerce_paths
 from mocap_rt.fusion.gather import DEFAULT_DEADLINE_FRAC
 
 
@@ -41,9 +42,7 @@ class RunConfig:
     overwrite: bool = False            # replace an existing --stats / --rerun save: file
 
     def __post_init__(self) -> None:
-        for name in ("rig_path", "record", "stats", "bones", "log_dir", "backgrounds_from"):
-            if getattr(self, name) is not None:
-                object.__setattr__(self, name, Path(getattr(self, name)))
+        coerce_paths(self)
 
 
 @dataclass
