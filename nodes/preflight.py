@@ -10,7 +10,6 @@ the CLI prints as one line (``mocap-rt run: error: ...``, exit code 2).
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 MAX_RT_PRIORITY = 97            # the launcher adds up to 2 for fusion and sync (SCHED_FIFO max 99)
@@ -32,14 +31,11 @@ def check_rig_against_recording(rig, rig_path: Path, rec) -> None:
 
 def check_options(cfg) -> None:
     """The options (``RunConfig``) the nodes would otherwise reject at start-up."""
-    from nodes.rerun_sink import parse_rerun
+    from nodes.rerun_sink import check_rerun
 
     outputs = {"--stats": cfg.stats} if cfg.stats is not None else {}
     if cfg.rerun is not None:
-        mode, args = parse_rerun(cfg.rerun)
-        if mode == "spawn" and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-            raise ValueError("--rerun spawn needs a display (DISPLAY/WAYLAND_DISPLAY unset); "
-                             "use --rerun save:FILE.rrd or serve")
+        mode, args = check_rerun(cfg.rerun)
         if mode == "save":
             outputs["--rerun save:"] = Path(args[0])
     check_outputs(cfg, outputs)
@@ -115,6 +111,7 @@ def check_run(cfg) -> None:
             if rec.n_frames < 1:
                 raise ValueError(f"--source {cfg.source}: the recording has no frames")
             check_rig_against_recording(rig, Path(rig_path), rec)
-    elif kind == "v4l2" and len(value.split(",")) != len(rig):
-        raise ValueError(f"--source v4l2: {len(value.split(','))} device(s) for {len(rig)} rig cameras "
-                         f"(give one per camera, in rig order, comma-separated)")
+    else:
+        from nodes.plan import worker_sources
+
+        worker_sources(cfg.source, list(rig.names))     # v4l2: one device per rig camera

@@ -40,11 +40,20 @@ def parse_rerun(spec: str) -> tuple[str, list[str]]:
     raise ValueError(f"--rerun {spec!r}: expected save:FILE.rrd | serve[:WEB[:GRPC]] | spawn | connect:URL")
 
 
+def check_rerun(spec: str) -> tuple[str, list[str]]:
+    """``parse_rerun``, and ``spawn`` only with a display (ValueError naming the flag)."""
+    mode, args = parse_rerun(spec)
+    if mode == "spawn" and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise ValueError("--rerun spawn needs a display (DISPLAY/WAYLAND_DISPLAY unset); "
+                         "use --rerun save:FILE.rrd or serve")
+    return mode, args
+
+
 def start_sink(spec: str, app_id: str = "mocap_rt") -> subprocess.Popen | None:
     """Initialise Rerun for ``--rerun spec``; returns the web-viewer process for ``serve``."""
     import rerun as rr
 
-    mode, args = parse_rerun(spec)
+    mode, args = check_rerun(spec)
     rr.init(app_id, spawn=False)
     if mode == "save":
         Path(args[0]).parent.mkdir(parents=True, exist_ok=True)
@@ -54,9 +63,6 @@ def start_sink(spec: str, app_id: str = "mocap_rt") -> subprocess.Popen | None:
         rr.connect_grpc(args[0])
         return None
     if mode == "spawn":
-        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-            raise ValueError("--rerun spawn needs a display (DISPLAY/WAYLAND_DISPLAY unset); "
-                             "use --rerun save:FILE.rrd or serve")
         rr.spawn()
         return None
     web = int(args[0]) if args else DEFAULT_WEB_PORT
