@@ -21,6 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from mocap_rt.io.files import atomic_write_text
 from nodes.messages import Keys
 from nodes.monitor import ServiceMonitor
 from nodes.plan import DEFAULT_RT_PRIORITY, plan_run  # noqa: F401  (DEFAULT_RT_PRIORITY: API)
@@ -174,7 +175,7 @@ class Launcher:
         stats = self.stats()
         if self.cfg.stats:
             Path(self.cfg.stats).parent.mkdir(parents=True, exist_ok=True)
-            Path(self.cfg.stats).write_text(json.dumps(_json_safe(stats), indent=2))
+            atomic_write_text(self.cfg.stats, json.dumps(_json_safe(stats), indent=2))
         return stats
 
     def stop(self) -> None:
