@@ -325,17 +325,15 @@ def chroma_table(pa, pb):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def colour_bits_table(b, g, r, table, emax_a, emax_b):  # pragma: no cover - numba
-    """``colour_bits`` through ``chroma_table`` (no polynomial, no model division per pixel)."""
-    si = np.int64(b) + np.int64(g) + np.int64(r)
+def chroma_bits(si, rn, gn, table, emax_a, emax_b):  # pragma: no cover - numba
+    """Colour bits (1 = model a, 2 = model b) of a pixel of grey sum ``si`` = b + g + r and
+    normalised chromaticities ``rn`` = r / si, ``gn`` = g / si (float32) through
+    ``chroma_table``; 0 when ``si`` is 0 or outside both models' grey range."""
     if si == 0:
         return 0
     valid = np.int64(table[si, 4])
     if valid == 0:
         return 0
-    s = np.float32(si)
-    rn = np.float32(r) / s
-    gn = np.float32(g) / s
     bits = 0
     if valid & 1:
         dr = rn - table[si, 0]

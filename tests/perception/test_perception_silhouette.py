@@ -66,3 +66,34 @@ def test_chroma_table_rows_are_the_model_chromaticity():
         np.testing.assert_array_equal((t[:, 4].astype(int) >> m) & 1, inside)
         np.testing.assert_allclose(t[inside, 2 * m], (rgb[:, 0] / rgb.sum(1))[inside], rtol=1e-6)
         np.testing.assert_allclose(t[inside, 2 * m + 1], (rgb[:, 1] / rgb.sum(1))[inside], rtol=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 23), st.integers(1, 19))
+def test_silhouette_colour_is_exactly_the_two_stages(seed, w, h):
+    """Bit-identical to the two separate kernels it fuses (``keep_strong_boundary``, then
+    ``colour_maps_binary`` on its pixels), at every box size down to one pixel: the row
+    passes and their ends (border replicated) and the per-row chromaticities."""
+    from mocap_rt.perception.background import keep_strong_boundary
+    from mocap_rt.perception.colour_model import colour_maps_binary
+
+    rng = np.random.default_rng(seed)
+    skin = ColourModel("a", TRUE_COEFFS, 4e-4, 4e-3, 30.0, 230.0)
+    shoe = default_colour_model("shoe")
+    H, W = h + 5, w + 7
+    grey = rng.uniform(0, 255, (H, W))
+    img = np.clip(skin.model_rgb(grey.ravel())[:, ::-1].reshape(H, W, 3) + rng.normal(0, 4, (H, W, 3)), 0, 255)
+    img = img.astype(np.uint8)
+    img[rng.random((H, W)) < 0.3] = np.array([40, 150, 45], np.uint8)    # shoe green
+    img[rng.random((H, W)) < 0.1] = 0                                    # black: grey sum 0
+    member = np.where(rng.random((h, w)) < 0.7, 255, 0).astype(np.uint8)
+    change = rng.choice(np.array([0, 128, 255], np.uint8), (h, w))
+    x0, y0 = 3, 2
+    sil, map_a, map_b = silhouette_colour(member, change, img, (x0, y0, w, h),
+                                          chroma_table(skin.kernel_params(), shoe.kernel_params()),
+                                          skin.max_error, shoe.max_error)
+    ref_sil = keep_strong_boundary(member, change)
+    ref_a, ref_b = colour_maps_binary(np.ascontiguousarray(img[y0:y0 + h, x0:x0 + w]), skin, shoe, ref_sil)
+    np.testing.assert_array_equal(sil, ref_sil)
+    np.testing.assert_array_equal(map_a, ref_a)
+    np.testing.assert_array_equal(map_b, ref_b)
