@@ -29,9 +29,10 @@ from mocap_rt.config import load_dataclass
 from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette, CuePrediction
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.names import C_HEAD, C_TORSO, CUE_NAMES, N_CUES, SHOE_CUE_INDEX, SHOE_CUES, SKIN_CUE_INDEX, SKIN_CUES
-from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, change_mask, largest_component_filled
+from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, largest_component_filled
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_model_from_spec
+from mocap_rt.perception.roi import ChangeMask, roi_candidates
 from mocap_rt.perception.scene import TORSO_HEAD_RADII, SceneState, check_head, torso_from_head
 from mocap_rt.perception.silhouette import silhouette_colour
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
@@ -58,6 +59,7 @@ class PerceptionConfig:
     shoe_model_path: str = ""
     roi_margin_px: int = 16               # ROI = previous person box + this ...
     roi_margin_frac: float = 0.05         # ... + this fraction of the box's larger side
+    roi_motion_px: int = 6                # first ROI: the box moved by its last motion + this (roi.py); 0 = off
     min_person_area_px: int = 200         # smaller largest component: no person
     torso_ridge_frac: float = DEFAULT_RIDGE_FRAC
     torso_head_radii: float = TORSO_HEAD_RADII   # torso = head + this x head radius toward the ridge centroid
@@ -114,6 +116,8 @@ class CameraPerceiver:
         self.shoe_tracker = BlobTracker(SHOE_CUES, config.shoe_blobs)
         self._torso_step = config.torso_step_px or (2 if w > 400 else 1)
         self._box: tuple[int, int, int, int] | None = None      # last person box, image px
+        self._prev_box: tuple[int, int, int, int] | None = None  # ... and the one before
+        self._change = ChangeMask((w, h))                        # this frame's change codes
         self._sil: np.ndarray | None = None                      # last silhouette in its box
         self._sil_box = (0, 0, 0, 0)
         self.last_contours: dict[str, np.ndarray] = {}           # deformed blob contours (viewer)
@@ -147,8 +151,8 @@ class CameraPerceiver:
         conf = np.zeros(N_CUES)
         self.last_contours = {}
         if box[2] == 0:
-            self.skin_tracker.step(np.zeros((1, 1), np.float32), (0, 0), (0, 0, 0, 0), None)
-            self.shoe_tracker.step(np.zeros((1, 1), np.float32), (0, 0), (0, 0, 0, 0), None)
+            self.skin_tracker.step(np.zeros((1, 1), np.uint8), (0, 0), (0, 0, 0, 0), None)
+            self.shoe_tracker.step(np.zeros((1, 1), np.uint8), (0, 0), (0, 0, 0, 0), None)
             t = time.perf_counter()
             empty = CompactSilhouette(0, 0, 1, np.zeros((0, 0), bool)) if self.config.silhouette_bytes > 0 else None
             return CameraCues(self.camera.name, frame, xy, cov, area, conf, (0, 0, 0, 0),
@@ -199,40 +203,33 @@ class CameraPerceiver:
         return CameraCues(self.camera.name, frame, xy, cov, area, conf, box, timings, compact)
 
     # ------------------------------------------------------------------ stages
-    def _roi(self) -> tuple[int, int, int, int]:
-        w, h = self.background.size
-        if self._box is None:
-            return 0, 0, w, h
-        x, y, bw, bh = self._box
-        m = int(self.config.roi_margin_px + self.config.roi_margin_frac * max(bw, bh))
-        x0, y0 = max(0, x - m), max(0, y - m)
-        x1, y1 = min(w, x + bw + m), min(h, y + bh + m)
-        return x0, y0, x1 - x0, y1 - y0
-
     def _silhouette(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int]]:
         """Filled component (bh, bw) uint8 {0, 255} and change codes (``change_mask``) in the
-        person box (x, y, w, h) image px; the boundary clean-up is ``silhouette_colour``'s."""
+        person box (x, y, w, h) image px; the boundary clean-up is ``silhouette_colour``'s.
+        The regions searched are ``roi.roi_candidates``, smallest first."""
         w, h = self.background.size
-        roi = self._roi()
-        while True:
-            rx, ry, rw, rh = roi
-            mask = change_mask(img, self.background, roi, self.config.change)
+        cfg = self.config
+        self._change.start()
+        for rx0, ry0, rx1, ry1 in roi_candidates(self._box, self._prev_box, (w, h), cfg.roi_margin_px,
+                                                 cfg.roi_margin_frac, cfg.roi_motion_px):
+            rw, rh = rx1 - rx0, ry1 - ry0
+            mask = self._change.extend(img, self.background, cfg.change, (rx0, ry0, rx1, ry1))
             if self._close_kernel is not None:
                 mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._close_kernel)
-            filled, (cx, cy, cw, ch) = largest_component_filled(mask, self.config.min_person_area_px)
-            full_roi = roi == (0, 0, w, h)
-            touches = cw > 0 and ((cx == 0 and rx > 0) or (cy == 0 and ry > 0) or
-                                  (cx + cw == rw and rx + rw < w) or (cy + ch == rh and ry + rh < h))
-            if full_roi or (cw > 0 and not touches):
-                break
-            roi = (0, 0, w, h)          # lost or leaving the ROI: search the whole image
+            filled, (cx, cy, cw, ch) = largest_component_filled(mask, cfg.min_person_area_px)
+            touches = cw > 0 and ((cx == 0 and rx0 > 0) or (cy == 0 and ry0 > 0) or
+                                  (cx + cw == rw and rx1 < w) or (cy + ch == rh and ry1 < h))
+            if cw > 0 and not touches:
+                break                   # else: lost or leaving the region, search the next
+        self._prev_box = self._box
         if cw == 0:
-            self._box, self._sil, self._sil_box = None, np.zeros((0, 0), np.uint8), (0, 0, 0, 0)
+            self._box = self._prev_box = None
+            self._sil, self._sil_box = np.zeros((0, 0), np.uint8), (0, 0, 0, 0)
             return self._sil, self._sil, (0, 0, 0, 0)
-        box = (rx + cx, ry + cy, cw, ch)
+        box = (rx0 + cx, ry0 + cy, cw, ch)
         self._box, self._sil_box = box, box
         change = mask[cy:cy + ch, cx:cx + cw]
-        if self.config.change.edge_strength <= 1.0:
+        if cfg.change.edge_strength <= 1.0:
             change = np.full_like(change, 255)      # no boundary clean-up
         return filled[cy:cy + ch, cx:cx + cw], change, box
 
