@@ -1,7 +1,8 @@
 """Numba kernels of the blob stage (seed digest A.2): labelling moments and the deformable ellipse.
 
 All coordinates are pixels of the array passed in (OpenCV convention: pixel (x, y) has its
-centre at integer (x, y)). ``skin`` maps are float32 in [0, 1] (1 = pixel of the colour).
+centre at integer (x, y)). ``skin`` maps are float32 in [0, 1] or uint8 {0, 1} (1 = pixel of the colour;
+the pipeline's are uint8).
 Each kernel has a plain NumPy reference in ``tests/perception`` that it is tested against.
 """
 
@@ -39,7 +40,7 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums):  # pr
     """Initial labelling (A.2): each colour pixel to the predicted centre nearest in units of
     the blobs' sizes, within its gate.
 
-    skin (h, w) float32, pixels with value >= 0.5 count; scan the box [x0, x1) x [y0, y1).
+    skin (h, w) float32 or uint8, pixels with value >= 0.5 count; scan the box [x0, x1) x [y0, y1).
     centers (K, 2) float64 pixels (NaN = not tracked), gate2 (K,) squared gate radius px^2,
     inv_scale2 (K,) 1 / squared (relative) blob size: a pixel goes to the blob of least
     ``d^2 * inv_scale2`` among those whose gate holds it, so where a hand touches the head
@@ -183,7 +184,7 @@ def deform_ellipse(skin, sil, mean, cov, kp, contour, sites, k_site):  # pragma:
         oy = max(0, int(math.floor(my - reach)) - 1)
         ex = min(w, int(math.floor(mx + reach)) + 3)
         ey = min(h, int(math.floor(my + reach)) + 3)
-        src = np.zeros((max(ey - oy, 0), max(ex - ox, 0)), np.float32)
+        src = np.zeros((max(ey - oy, 0), max(ex - ox, 0)), skin.dtype)
         for y in range(oy, ey):
             for x in range(ox, ex):
                 src[y - oy, x - ox] = _own(skin, x, y, sites, k_site)

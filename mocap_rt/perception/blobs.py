@@ -87,6 +87,12 @@ _NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
 _NAN_K = np.full(8, np.nan)
 
 
+def colour_mask(cmap: np.ndarray) -> np.ndarray:
+    """(h, w) uint8, nonzero = colour pixel, of a colour map (h, w): a uint8 {0, 1} map as it is
+    (no copy), a float map where >= 0.5 (what ``cv2.connectedComponents`` takes)."""
+    return cmap if cmap.dtype == np.uint8 else (cmap >= 0.5).view(np.uint8)
+
+
 class BlobTracker:
     """Tracks the K blobs ``roles`` of one colour in one camera."""
 
@@ -133,7 +139,8 @@ class BlobTracker:
              sil_roi: np.ndarray | None = None) -> BlobFrame:
         """Track one frame.
 
-        skin_roi : (h, w) float32 colour map of the region of interest, 1 = colour pixel
+        skin_roi : (h, w) colour map of the region of interest, float32 (>= 0.5 = colour pixel) or
+            uint8 {0, 1} (the pipeline's: 1 = colour pixel)
             (already restricted to the silhouette).
         roi_xy : (x, y) of the ROI's top-left pixel in the image.
         person_box_roi : (x, y, w, h) of the silhouette in ROI pixels.
@@ -210,7 +217,7 @@ class BlobTracker:
         wx0, wy0, wx1, wy1 = snap_window(centers, gate, *box, SNAP_NEAR_GATES, SNAP_WINDOW_GATES)
         if wx1 <= wx0:
             return centers
-        mask = (skin_roi[wy0:wy1, wx0:wx1] >= 0.5).view(np.uint8)
+        mask = colour_mask(skin_roi[wy0:wy1, wx0:wx1])
         n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
         out = centers.copy()
         snap_regions(labels, n, wx0, wy0, centers, gate, self.params.acquire_min_area_px, SNAP_MAX_REGIONS, out)
@@ -221,7 +228,7 @@ class BlobTracker:
         p = self.params
         K = len(self.roles)
         x0, y0, x1, y1 = box
-        mask = (skin_roi[y0:y1, x0:x1] >= 0.5).view(np.uint8)
+        mask = colour_mask(skin_roi[y0:y1, x0:x1])
         n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
         self._acq_centers = np.full((K, 2), np.nan)
         self._acq_gate = np.zeros(K)

@@ -39,6 +39,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from mocap_rt.perception.blobs import colour_mask
+
 TORSO_HEAD_RADII = 3.7       # head -> torso distance in head image radii (module docstring)
 HISTORY_FRAMES = 15          # recent head radii kept (px), for the torso's scale
 HEAD_ALONG_RADII = (2.3, 6.5)    # a head lies this far along the trunk axis from the ridge centroid, own radii ...
@@ -115,8 +117,8 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
     or None.
 
     head_xy (2,) px (NaN = not found), head_area px^2 and head_conf of the head blob;
-    ridge_xy (2,) px, ridge_cov (2, 2) px^2 the ridge band (NaN = none); skin (h, w) float32
-    colour map of the person box whose top-left is ``origin`` (x, y) px.
+    ridge_xy (2,) px, ridge_cov (2, 2) px^2 the ridge band (NaN = none); skin (h, w) colour map
+    (``blobs.colour_mask``) of the person box whose top-left is ``origin`` (x, y) px.
     """
     if not np.isfinite(ridge_xy).all():
         return None
@@ -140,7 +142,7 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
 def _best_head_region(skin: np.ndarray, ridge_xy: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float] | None:
     """(centroid (2,) array px, area px^2) of the connected skin region of ``skin`` (h, w)
     that passes the head test best (``head_score``), or None."""
-    mask = (skin >= 0.5).view(np.uint8)
+    mask = colour_mask(skin)
     n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
     best, best_score = None, np.inf
     for i in range(1, n):
