@@ -324,30 +324,6 @@ def chroma_table(pa, pb):  # pragma: no cover - numba
     return t
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def chroma_bits(si, rn, gn, table, emax_a, emax_b):  # pragma: no cover - numba
-    """Colour bits (1 = model a, 2 = model b) of a pixel of grey sum ``si`` = b + g + r and
-    normalised chromaticities ``rn`` = r / si, ``gn`` = g / si (float32) through
-    ``chroma_table``; 0 when ``si`` is 0 or outside both models' grey range."""
-    if si == 0:
-        return 0
-    valid = np.int64(table[si, 4])
-    if valid == 0:
-        return 0
-    bits = 0
-    if valid & 1:
-        dr = rn - table[si, 0]
-        dg = gn - table[si, 1]
-        if dr * dr + dg * dg <= emax_a:
-            bits = 1
-    if valid & 2:
-        dr = rn - table[si, 2]
-        dg = gn - table[si, 3]
-        if dr * dr + dg * dg <= emax_b:
-            bits |= 2
-    return bits
-
-
 @numba.njit(cache=True, nogil=True)
 def _two_maps_kernel(img, mask, pa, pb, out_a, out_b):  # pragma: no cover - numba
     """Binary maps of two models in one pass (the pipeline's skin + shoe maps)."""
