@@ -47,8 +47,11 @@ $(STAMP): pyproject.toml
 demo: $(STAMP) kernels
 	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
 
+# two pytest-xdist workers, a test module to each (its fixtures made once): the service tests
+# wait on real-time replays much of their time, the library tests use the other core then
+TEST_JOBS ?= 2
 test: system-deps setup
-	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q --durations=15
+	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q --durations=15 -n $(TEST_JOBS) --dist loadscope
 
 test-fast: setup
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q -m "not slow"
