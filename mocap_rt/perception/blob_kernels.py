@@ -16,14 +16,12 @@ import numpy as np
 # Moment vector layout: n, sum x, sum y, sum xx, sum xy, sum yy.
 N_MOMENTS = 6
 
-# The settings of ``label_and_refine`` and ``predict_gates`` (from ``blobs.BlobParams``), each a
-# (1,) structured array: the kernels read the fields by name, and numba dispatches it as one
-# array argument (cheaper per call than a NamedTuple of scalars).
+# The settings of ``label_and_refine`` (from ``blobs.BlobParams``; ``track_kernels.GATE_PARAMS``
+# likewise), a (1,) structured array: the kernels read the fields by name, and numba
+# dispatches it as one array argument (cheaper per call than a NamedTuple of scalars).
 REFINE_PARAMS = np.dtype([("min_area_px", "f8"), ("ellipse_scale", "f8"), ("n_contour_pts", "i8"),
                           ("search_frac", "f8"), ("search_min_px", "f8"), ("window_half_px", "i8"),
                           ("mirror_iters", "i8"), ("max_refine_shift_frac", "f8"), ("exclusive_pixels", "?")])
-GATE_PARAMS = np.dtype([("gate_min_px", "f8"), ("gate_radius_factor", "f8"), ("gate_unknown_px", "f8"),
-                        ("gate_speed_factor", "f8")])
 
 
 def params_record(dtype: np.dtype, source, **override) -> np.ndarray:
@@ -386,56 +384,3 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp
                 xy[k, 1] = cy
                 area[k] = a
                 has_contour[k] = True
-
-
-@numba.njit(cache=True, nogil=True)
-def update_tracks(found, new_xy, new_cov, xy, vel, radius, coast, last_seen, max_coast):  # pragma: no cover
-    """2D track state after a frame: velocity (px/frame), position, semi-major axis (2 sigma, px)."""
-    for k in range(found.shape[0]):
-        if not found[k]:
-            coast[k] += 1
-            continue
-        if coast[k] <= max_coast and math.isfinite(xy[k, 0]) and math.isfinite(xy[k, 1]):
-            vel[k, 0] = (new_xy[k, 0] - xy[k, 0]) / (1 + coast[k])
-            vel[k, 1] = (new_xy[k, 1] - xy[k, 1]) / (1 + coast[k])
-        else:
-            vel[k, 0] = 0.0
-            vel[k, 1] = 0.0
-        xy[k, 0] = new_xy[k, 0]
-        xy[k, 1] = new_xy[k, 1]
-        last_seen[k, 0] = new_xy[k, 0]
-        last_seen[k, 1] = new_xy[k, 1]
-        tr = 0.5 * (new_cov[k, 0, 0] + new_cov[k, 1, 1])
-        l1 = tr + math.sqrt(0.25 * (new_cov[k, 0, 0] - new_cov[k, 1, 1]) ** 2 + new_cov[k, 0, 1] ** 2)
-        radius[k] = 2.0 * math.sqrt(max(l1, 0.25))
-        coast[k] = 0
-
-
-@numba.njit(cache=True, nogil=True)
-def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_pred, ox, oy, gp,
-                  centers, gate):  # pragma: no cover - numba
-    """Labelling centres (ROI px) and gate radii of one tracker for a frame.
-
-    Own prediction: constant velocity, NaN after ``max_coast`` lost frames. With
-    ``use_pred`` the given prediction (image px) wins where finite, and the radius is the
-    larger of the predicted one and the blob's own semi-major axis. gp: (1,) ``GATE_PARAMS`` record.
-    """
-    q = gp[0]
-    for k in range(xy.shape[0]):
-        if coast[k] > max_coast:
-            cx = np.nan
-            cy = np.nan
-        else:
-            cx = xy[k, 0] + vel[k, 0] * (1 + coast[k])
-            cy = xy[k, 1] + vel[k, 1] * (1 + coast[k])
-        r = radius[k]
-        if use_pred:
-            if math.isfinite(pred_xy[k, 0]) and math.isfinite(pred_xy[k, 1]):
-                cx = pred_xy[k, 0]
-                cy = pred_xy[k, 1]
-            if math.isfinite(pred_radius[k]) and (not math.isfinite(r) or pred_radius[k] > r):
-                r = pred_radius[k]
-        centers[k, 0] = cx - ox
-        centers[k, 1] = cy - oy
-        g = max(q.gate_min_px, q.gate_radius_factor * r) if math.isfinite(r) else q.gate_unknown_px
-        gate[k] = g + q.gate_speed_factor * math.hypot(vel[k, 0], vel[k, 1])

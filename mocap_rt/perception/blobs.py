@@ -32,9 +32,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mocap_rt.perception.blob_kernels import (GATE_PARAMS, N_MOMENTS, REFINE_PARAMS, label_and_refine, params_record,
-                                              predict_gates, update_tracks)
+from mocap_rt.perception.blob_kernels import N_MOMENTS, REFINE_PARAMS, label_and_refine, params_record
 from mocap_rt.perception.region_kernels import acquire_candidates, snap_regions, snap_window
+from mocap_rt.perception.track_kernels import GATE_PARAMS, finish_frame, predict_gates
 
 log = logging.getLogger(__name__)
 
@@ -112,6 +112,7 @@ class BlobTracker:
         self._out_contours = np.zeros((K, params.n_contour_pts, 2))
         self._has_contour = np.zeros(K, np.bool_)
         self._all_visible = np.ones(K, np.bool_)
+        self._none_acquired = np.zeros(K, np.bool_)
         self._size = np.array([ROLE_SIZE.get(r, 1.0) for r in self.roles])
         self._acq_cand = np.empty((ACQUIRE_MAX_REGIONS, 4))   # acquire_candidates' output
         self._kp = params_record(REFINE_PARAMS, params)
@@ -173,23 +174,21 @@ class BlobTracker:
             centers = self._snap_to_regions(skin_roi, box, centers, gate)
         mirror = p.mirror_iters if sil_roi is not None else 0
         found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
-        acquired = np.zeros(K, bool)
-        missing = ~found
-        if missing.any():
-            acquired = self._acquire(skin_roi, box, centers, found, missing, top_roi, self._last_seen - (ox, oy))
+        acquired = self._none_acquired
+        if not found.all():
+            acquired = self._acquire(skin_roi, box, centers, found, ~found, top_roi, self._last_seen - (ox, oy))
             if acquired.any():
                 centers = np.where(acquired[:, None], self._acq_centers, centers)
                 gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
                 found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
-        n = self._sums[:, 0]
-        conf = np.minimum(1.0, n / (4.0 * p.min_area_px)) * np.where(visible, 1.0, 0.5) * \
-            np.where(acquired, 0.5, 1.0) * found
+        xy, conf = np.empty((K, 2)), np.empty(K)
+        finish_frame(self._sums[:, 0], found, visible, acquired, 4.0 * p.min_area_px, float(ox), float(oy),
+                     self._out_xy, self._out_cov, xy, conf, self._xy, self._vel, self._radius, self._coast,
+                     self._last_seen, int(p.max_coast_frames))
         offset = np.array(roi_xy, np.float64)
-        out = BlobFrame(self._out_xy + offset, self._out_cov.copy(), self._out_area.copy(), conf,
-                        [self._out_contours[k] + offset if self._has_contour[k] and found[k] else None
-                         for k in range(K)])
-        self._update_state(out, found)
-        return out
+        return BlobFrame(xy, self._out_cov.copy(), self._out_area.copy(), conf,
+                         [self._out_contours[k] + offset if has else None
+                          for k, has in enumerate((self._has_contour & found).tolist())])
 
     def _run(self, skin_roi, sil, box, centers, gate, visible, mirror) -> np.ndarray:
         p = self.params
@@ -299,7 +298,3 @@ class BlobTracker:
             elif len(need) == 1 and cand:
                 take(need[0], 0)
         return acquired
-
-    def _update_state(self, out: BlobFrame, found: np.ndarray) -> None:
-        update_tracks(found, out.xy, out.cov, self._xy, self._vel, self._radius, self._coast, self._last_seen,
-                      int(self.params.max_coast_frames))

@@ -39,8 +39,15 @@ from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
 
 log = logging.getLogger(__name__)
 
-_SKIN_IDX = np.array(SKIN_CUE_INDEX)
-_SHOE_IDX = np.array(SHOE_CUE_INDEX)
+def _cue_rows(index: tuple[int, ...]) -> slice:
+    """The cue rows of one tracker as a slice (a view, ~5x cheaper than an index array)."""
+    if tuple(index) != tuple(range(index[0], index[-1] + 1)):
+        raise ValueError(f"tracker cues {index} are not consecutive rows of CUE_NAMES")
+    return slice(index[0], index[-1] + 1)
+
+
+_SKIN_IDX = _cue_rows(SKIN_CUE_INDEX)
+_SHOE_IDX = _cue_rows(SHOE_CUE_INDEX)
 
 
 @dataclass(frozen=True)
@@ -169,7 +176,7 @@ class CameraPerceiver:
             else:
                 res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, sil_roi=sil)
             xy[idx], cov[idx], area[idx], conf[idx] = res.xy, res.cov, res.area, res.confidence
-            for k, c in zip(idx, res.contours):
+            for k, c in zip(range(idx.start, idx.stop), res.contours):
                 if c is not None:
                     self.last_contours[CUE_NAMES[k]] = c
         t3 = time.perf_counter()
