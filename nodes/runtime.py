@@ -18,6 +18,7 @@ import time
 from collections import deque
 from contextlib import contextmanager
 
+from mocap_rt.warmup import SERVICE_PACKAGES, is_warm, load_cached_kernels
 from nodes.messages import Decoder, Keys, Status
 from nodes.transport import open_session
 
@@ -64,24 +65,26 @@ def node_session(settings, rig_name: str, role: str, node: str):
     with open_session(settings) as session:
         rt = NodeRuntime(session, Keys(rig_name), node, role)
         rt.install_signal_handlers()
-        if role in KERNEL_ROLES:
+        if role in KERNEL_PACKAGES:
             rt.publish_status("starting", force=True)
-            load_kernels(rt)
+            load_kernels(rt, KERNEL_PACKAGES[role])
         yield rt
 
 
-KERNEL_ROLES = ("camera", "fusion")     # nodes that run numba kernels on the frame path
+# the nodes that run numba kernels on the frame path, and the packages whose kernels they call
+# (a camera worker has no use for the ~30 IK and body-fit signatures: loading them cost each of
+# the seven worker processes ~0.7 s of CPU at every cluster start; fusion's foot-axis cue calls
+# a perception kernel, so fusion loads them all)
+KERNEL_PACKAGES = {"camera": ("mocap_rt.perception", "mocap_rt.geometry"), "fusion": SERVICE_PACKAGES}
 
 
-def load_kernels(rt: NodeRuntime) -> None:
-    """Load the frame path's cached numba kernels now (``mocap_rt.warmup.load_cached_kernels``),
+def load_kernels(rt: NodeRuntime, packages: tuple[str, ...]) -> None:
+    """Load the cached numba kernels of ``packages`` now (``mocap_rt.warmup.load_cached_kernels``),
     before the node's warm-up frame and its *ready*: no frame waits for a kernel load."""
-    from mocap_rt.warmup import is_warm, load_cached_kernels
-
     if not is_warm():
         log.warning("%s: the numba kernel cache is cold (run `python -m mocap_rt.warmup`); "
                     "this node compiles what it needs during its warm-up", rt.node)
-    n, secs = load_cached_kernels()
+    n, secs = load_cached_kernels(packages)
     rt.extra["kernels_loaded"] = n
     log.info("%s: %d cached kernel signatures loaded in %.2f s", rt.node, n, secs)
 
