@@ -103,12 +103,23 @@ def suite_clips(which: str = "default") -> list[SuiteClip]:
     raise ValueError(f"suite must be default, quick, held-out or all, got {which!r}")
 
 
+def _procedural_named(name: str) -> SuiteClip | None:
+    """``proc_<motion>_s<seed>`` for any seed (fresh held-out clips, e.g. ``proc_feet_cross_s2020``), else None."""
+    for motion in PROCEDURAL:
+        seed = name.removeprefix(f"proc_{motion}_s")
+        if seed != name and seed.isdigit():
+            return SuiteClip(name, f"procedural:{motion}:{seed}", None, PROC_START_S, SEGMENT_S, "held-out")
+    return None
+
+
 def select(clips: list[SuiteClip], names: str | None) -> list[SuiteClip]:
-    """Clips whose name is in the comma-separated ``names`` (all when None); unknown names raise."""
+    """Clips whose name is in the comma-separated ``names`` (all when None; ``proc_<motion>_s<seed>`` at
+    any seed too); unknown names raise."""
     if not names:
         return clips
     pool = {c.name: c for c in suite_clips("all") + clips}
     wanted = [n.strip() for n in names.split(",") if n.strip()]
+    pool.update({n: c for n in wanted if n not in pool and (c := _procedural_named(n)) is not None})
     unknown = [n for n in wanted if n not in pool]
     if unknown:
         raise SystemExit(f"unknown suite clip(s) {unknown}; known: {', '.join(sorted(pool))}")

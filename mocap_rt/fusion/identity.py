@@ -14,7 +14,12 @@ silhouette chamfer + pan change). Each alternative's evidence is a leaky sum of 
 cheaper it is than the current one (``decide``); the labels switch when the evidence
 passes ``switch_evidence`` and the alternative also wins this frame by ``frame_margin``
 plus ``frame_margin_frac`` of the current cost (hysteresis: one odd frame never
-switches, and a frame that no hypothesis fits well decides nothing). During the first ``acquire_frames`` of a
+switches, and a frame that no hypothesis fits well decides nothing). The mirror exchanges
+both pairs, and the pair it adds to the best single-pair swap must be earned: by the
+mirror's evidence beating that swap's by the threshold too, or by that pair's own swap
+having positive evidence; else the single swap is taken (a cold start with only the hands
+wrong fits the mirror 1-2 units better than the hands swap, the feet labels barely mattering,
+and must not exchange its right feet). During the first ``acquire_frames`` of a
 track the threshold is ``acquire_factor`` times lower, so a cold start on any motion
 takes the right identity within a few frames, without a calibration pose.
 """
@@ -33,6 +38,8 @@ from mocap_rt.names import C_HEAD, C_TORSO, LR_PAIRS
 ALTERNATIVES = ("hands", "feet", "mirror")
 HANDS, FEET = LR_PAIRS
 ALTERNATIVE_PAIRS = ((HANDS,), (FEET,), (HANDS, FEET))
+_MIRROR = ALTERNATIVES.index("mirror")
+_SINGLE = tuple(k for k in range(len(ALTERNATIVES)) if k != _MIRROR)
 # the swivel slots (arm_l, arm_r, leg_l, leg_r) each alternative exchanges
 _SWIVEL_ORDER = (np.array([1, 0, 2, 3]), np.array([0, 1, 3, 2]), np.array([1, 0, 3, 2]))
 
@@ -132,6 +139,16 @@ def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> i
     if not ok.any():
         return -1
     k = int(np.argmax(np.where(ok, state.evidence, -np.inf)))
+    if k == _MIRROR:
+        # the mirror exchanges both pairs, and each must earn its exchange: the pair it adds to
+        # the best single-pair swap is earned when the mirror beats that swap by the threshold
+        # too, or when that pair's own swap is supported (evidence > 0); else it is undecided
+        # (feet together, hands together) and keeps its measured labels
+        single, other = sorted(_SINGLE, key=lambda j: -state.evidence[j])
+        if state.evidence[k] - state.evidence[single] <= need and state.evidence[other] <= 0:
+            if not ok[single]:
+                return -1
+            k = single
     state.evidence[:] = 0.0
     state.switches += 1
     return k

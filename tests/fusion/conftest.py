@@ -27,3 +27,17 @@ def backwards_walk(tmp_path_factory, data_dir):
 def backwards_walk_3s(tmp_path_factory, data_dir):
     """The same walk for 3 s (a feet swap made mid-clip is put right by its 46th frame)."""
     return _backwards_walk(tmp_path_factory, data_dir, 2 * BACKWARDS_WALK_FRAMES)
+
+
+@pytest.fixture(scope="session")
+def kick_reversed(tmp_path_factory, data_dir):
+    """The Bandai kick played backwards, its first 0.5 s (standing, feet 0.7 m apart, hands
+    0.65 m apart), 6-camera ring at 320x240, 30 fps, with truth and silhouettes."""
+    from mocap_rt.studio.synth import make_rig, synthesize
+    from mocap_rt.studio.variants import load_motion
+
+    bvh, name = load_motion(data_dir / "bvh" / "bandai_namco" / "dataset-1_kick_normal_001.bvh", "reversed")
+    out = tmp_path_factory.mktemp("kick_reversed") / "rec"
+    synthesize(bvh, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=0.5, start_s=0.0, seed=3,
+               motion_name=name)
+    return out
