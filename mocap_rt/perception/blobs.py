@@ -29,11 +29,10 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from mocap_rt.perception.blob_kernels import N_MOMENTS, REFINE_PARAMS, label_and_refine, params_record
-from mocap_rt.perception.region_kernels import acquire_candidates, snap_regions, snap_window
+from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions, snap_regions, snap_window
 from mocap_rt.perception.track_kernels import GATE_PARAMS, finish_frame, predict_gates
 
 log = logging.getLogger(__name__)
@@ -89,7 +88,7 @@ _NAN_K = np.full(8, np.nan)
 
 def colour_mask(cmap: np.ndarray) -> np.ndarray:
     """(h, w) uint8, nonzero = colour pixel, of a colour map (h, w): a uint8 {0, 1} map as it is
-    (no copy), a float map where >= 0.5 (what ``cv2.connectedComponents`` takes)."""
+    (no copy), a float map where >= 0.5 (what OpenCV's component functions take)."""
     return cmap if cmap.dtype == np.uint8 else (cmap >= 0.5).view(np.uint8)
 
 
@@ -216,10 +215,9 @@ class BlobTracker:
         wx0, wy0, wx1, wy1 = snap_window(centers, gate, *box, SNAP_NEAR_GATES, SNAP_WINDOW_GATES)
         if wx1 <= wx0:
             return centers
-        mask = colour_mask(skin_roi[wy0:wy1, wx0:wx1])
-        n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+        n, stats = colour_regions(skin_roi, wx0, wy0, wx1, wy1)
         out = centers.copy()
-        snap_regions(labels, n, wx0, wy0, centers, gate, self.params.acquire_min_area_px, SNAP_MAX_REGIONS, out)
+        snap_regions(stats, n, wx0, wy0, centers, gate, self.params.acquire_min_area_px, SNAP_MAX_REGIONS, out)
         return out
 
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
@@ -227,14 +225,13 @@ class BlobTracker:
         p = self.params
         K = len(self.roles)
         x0, y0, x1, y1 = box
-        mask = colour_mask(skin_roi[y0:y1, x0:x1])
-        n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+        n, stats = colour_regions(skin_roi, x0, y0, x1, y1)
         self._acq_centers = np.full((K, 2), np.nan)
         self._acq_gate = np.zeros(K)
         acquired = np.zeros(K, bool)
         if n <= 1:
             return acquired
-        n_cand = acquire_candidates(labels, n, x0, y0, self._sums, found, p.acquire_min_area_px, self._acq_cand)
+        n_cand = acquire_candidates(stats, n, x0, y0, self._sums, found, p.acquire_min_area_px, self._acq_cand)
         if n_cand == 0:
             return acquired
         cand = [(area, np.array([cx, cy]), half) for area, cx, cy, half in self._acq_cand[:n_cand].tolist()]
