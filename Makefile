@@ -50,7 +50,8 @@ demo: $(STAMP) kernels
 # two pytest-xdist workers, a test module to each (its fixtures made once): the service tests
 # wait on real-time replays much of their time, the library tests use the other core then
 TEST_JOBS ?= 2
-test: system-deps setup
+test: system-deps $(STAMP)
+	$(MAKE) -j2 gst-bindings kernels      # PyGObject's build and the kernel warm-up side by side
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q --durations=15 -n $(TEST_JOBS) --dist loadscope
 
 test-fast: setup
