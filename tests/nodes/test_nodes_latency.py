@@ -145,10 +145,13 @@ def test_enter_realtime_covers_every_thread_and_later_ones():
         assert enter_realtime(7)
         late = []
         th2 = threading.Thread(target=lambda: late.append(os.sched_getscheduler(0))); th2.start(); th2.join()
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-        pol = {t: os.sched_getscheduler(t) for t in tids}
-        prio = {t: os.sched_getparam(t).sched_priority for t in tids}
-        print(len(tids), all(p == os.SCHED_FIFO for p in pol.values()), set(prio.values()), late == [os.SCHED_FIFO])
+        def policy(tid):
+            try:
+                return os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority
+            except ProcessLookupError:      # th2: join() returns before its OS thread is gone
+                return None
+        pol = [p for t in os.listdir("/proc/self/task") if (p := policy(int(t))) is not None]
+        print(len(pol), all(p == os.SCHED_FIFO for p, _ in pol), set(q for _, q in pol), late == [os.SCHED_FIFO])
         ev.set()
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO)
