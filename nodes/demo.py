@@ -50,6 +50,12 @@ def _rel(p: Path) -> str:
         return str(p)
 
 
+def _most_missing(counts: dict[str, int], n: int = 3) -> str:
+    """``"; late or missing: cam_3 12, cam_5 4"``: the cameras most often absent from a pose."""
+    worst = sorted(((k, c) for c, k in counts.items() if k), reverse=True)[:n]
+    return "; late or missing: " + ", ".join(f"{c} {k}" for k, c in worst) if worst else ""
+
+
 def summary(stats: dict, rec: Path, out: Path, rrd: Path, poses: Path, stats_path: Path) -> list[str]:
     """The lines printed at the end: what was measured, where it is, how to look at it."""
     lat = stats["latency_ms"]
@@ -62,7 +68,8 @@ def summary(stats: dict, rec: Path, out: Path, rrd: Path, poses: Path, stats_pat
     return [
         f"demo: {trig} frames triggered in {stats['run_s']:.1f} s ({stats['trigger_fps']:.0f} fps), "
         f"{n_poses} poses ({pct(n_poses, trig):.1f} %), {stats['frames_dropped']} frames without a pose, "
-        f"{all_cams} poses from all {len(stats['cameras'])} cameras ({pct(all_cams, n_poses):.1f} %)",
+        f"{all_cams} poses from all {len(stats['cameras'])} cameras ({pct(all_cams, n_poses):.1f} %)"
+        + _most_missing(stats.get("poses_missing_camera", {})),
         f"demo: latency trigger -> pose p50 {lat['p50']:.1f} ms, p95 {lat['p95']:.1f} ms, "
         f"p99 {lat['p99']:.1f} ms, max {lat['max']:.1f} ms; node drops {stats['node_drops']} "
         f"(viewer {viewer.get('drops', 0)}), restarts {sum(n['restarts'] for n in stats['nodes'].values())}",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import Counter
 
 from nodes.frame_window import window_drops
 from nodes.monitor import percentiles
@@ -47,6 +48,7 @@ def run_stats(launcher) -> dict:
         t = sorted(m.triggers.values())
         run_s = (t[-1] - t[0]) / 1e9 + (t[-1] - t[0]) / 1e9 / (len(t) - 1)
     missing_any = sum(1 for p in m.poses if p.cameras_missing) if m else 0
+    missing_by_camera = Counter(c for p in m.poses for c in p.cameras_missing) if m else Counter()
     nodes = {}
     for name, n in launcher.nodes.items():
         st = table.get(name, {})
@@ -64,6 +66,7 @@ def run_stats(launcher) -> dict:
         "decode_drops": sum(v["decode_drops"] for v in nodes.values()) + (m.decoder.total_drops if m else 0),
         "frame_window_drops": window_drops(table, *([m.window] if m else [])),
         "poses_with_missing_cameras": missing_any,
+        "poses_missing_camera": {c: missing_by_camera[c] for c in launcher.rig.names},
         "latency_ms": {k: round(v, 3) for k, v in lat.items()},
         "stages_ms": ({k: {q: round(v, 3) for q, v in d.items()} for k, d in m.stage_percentiles().items()}
                       if m else {}),

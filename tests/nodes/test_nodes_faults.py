@@ -99,6 +99,7 @@ def test_faults_on_a_running_cluster(tmp_path, tmp_path_factory, data_dir):
         # until the hot spare takes over (a few frames), every pose names the dead camera
         n_missing = next((i for i, p in enumerate(after) if "cam_2" not in p.cameras_missing), len(after))
         assert n_missing >= 1, [p.cameras_missing for p in after]
+        assert L.stats()["poses_missing_camera"]["cam_2"] >= n_missing      # the statistics name it too
         lat = [p.latency_ms for p in after[:n_missing]]
         print(f"after kill: pose latency ms {np.round(lat, 1)} (frame period {PERIOD_S * 1e3:.1f} ms)")
         # the fusion waits for a dead camera at most the deadline (0.8 of a period), never for it to

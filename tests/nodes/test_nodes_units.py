@@ -369,3 +369,11 @@ def test_gatherer_first_frame_has_a_grace_period():
     assert set(g.ready(45 * MS)[0].cues) == {"a", "b"}
     g.on_trigger(Trigger("r", 1, 40 * MS, 0, 40 * MS), now_ns=40 * MS)
     assert g.pending[1].deadline_ns == 40 * MS + 20 * MS             # later frames: the usual deadline
+
+
+def test_demo_summary_names_the_cameras_most_often_missing():
+    from nodes.demo import _most_missing
+
+    counts = {"cam_1": 0, "cam_2": 5, "cam_3": 12, "cam_4": 1, "cam_5": 4, "cam_6": 0}
+    assert _most_missing(counts) == "; late or missing: cam_3 12, cam_2 5, cam_5 4"
+    assert _most_missing({"cam_1": 0, "cam_2": 0}) == ""
