@@ -40,7 +40,6 @@ def warm_kernels() -> dict:
     return read_stamp()
 
 
-
 def pytest_collection_modifyitems(config, items):
     """The end-to-end tests first. ``make test`` runs the suite on two pytest-xdist workers,
     a whole test module to a worker (``--dist loadscope``: a module's fixtures are made once);
