@@ -47,12 +47,14 @@ $(STAMP): pyproject.toml
 demo: $(STAMP) kernels
 	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
 
-# two pytest-xdist workers, a test module to each (its fixtures made once): the service tests
-# wait on real-time replays much of their time, the library tests use the other core then
-TEST_JOBS ?= 2
+# TEST_JOBS=2: two pytest-xdist workers, a test module to each (its fixtures made once). Not the
+# default: on 2 cores two service clusters at once each get half the CPU their real-time frame
+# path was given, and a replay loses frames (a test saw 58 poses of 75 where it needs 60)
+TEST_JOBS ?= 1
 test: system-deps $(STAMP)
 	$(MAKE) -j2 gst-bindings kernels      # PyGObject's build and the kernel warm-up side by side
-	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q --durations=15 -n $(TEST_JOBS) --dist loadscope
+	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q --durations=15 \
+	  $(if $(filter-out 1,$(TEST_JOBS)),-n $(TEST_JOBS) --dist loadscope)
 
 test-fast: setup
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q -m "not slow"

@@ -38,11 +38,3 @@ def warm_kernels() -> dict:
     out = subprocess.run(argv, capture_output=True, text=True, timeout=1200, cwd=REPO)
     assert out.returncode == 0, f"kernel warm-up failed: {out.stdout[-2000:]}{out.stderr[-2000:]}"
     return read_stamp()
-
-
-def pytest_collection_modifyitems(config, items):
-    """The end-to-end tests first. ``make test`` runs the suite on two pytest-xdist workers,
-    a whole test module to a worker (``--dist loadscope``: a module's fixtures are made once);
-    started first, the service runs (most of the suite's wall time, much of it waiting on a
-    real-time replay) go beside the library tests instead of ending the session alone."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)     # stable: slow first

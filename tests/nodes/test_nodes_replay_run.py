@@ -2,8 +2,8 @@
 recorder, viewer and VMC stream on (the demo path and more): its recording and Rerun file, its
 statistics, the kernel cache the launcher built before any node started, and the VMC bundles a
 plain UDP socket received. A cluster start and a replay cost ~20 s (a cold cache ~60 s more),
-so the run is made once for this module and every test reads what it left (one module: the
-parallel ``make test`` gives the whole module to one worker)."""
+so the run is made once for this module and every test reads what it left (one module: with
+``TEST_JOBS=2 make test``, pytest-xdist gives the whole module to one worker)."""
 
 import json
 import os
