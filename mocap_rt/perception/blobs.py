@@ -86,12 +86,6 @@ _NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
 _NAN_K = np.full(8, np.nan)
 
 
-def colour_mask(cmap: np.ndarray) -> np.ndarray:
-    """(h, w) uint8, nonzero = colour pixel, of a colour map (h, w): a uint8 {0, 1} map as it is
-    (no copy), a float map where >= 0.5 (what OpenCV's component functions take)."""
-    return cmap if cmap.dtype == np.uint8 else (cmap >= 0.5).view(np.uint8)
-
-
 class BlobTracker:
     """Tracks the K blobs ``roles`` of one colour in one camera."""
 

@@ -33,13 +33,13 @@ the band is not elongated).
 from __future__ import annotations
 
 import math
+import statistics
 from collections import deque
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
-from mocap_rt.perception.blobs import colour_mask
+from mocap_rt.perception.region_kernels import colour_regions
 
 TORSO_HEAD_RADII = 3.7       # head -> torso distance in head image radii (module docstring)
 HISTORY_FRAMES = 15          # recent head radii kept (px), for the torso's scale
@@ -59,13 +59,9 @@ class SceneState:
     suspect_frames: int = 0
 
     def head_radius(self) -> float:
-        """Median recent head radius, px (NaN before any); ``np.median``'s value, without its
-        per-call overhead (~20 us, once a frame)."""
-        r = sorted(self.radii)
-        n = len(r)
-        if n == 0:
-            return float("nan")
-        return float(r[n // 2]) if n % 2 else float((r[n // 2 - 1] + r[n // 2]) / 2.0)
+        """Median recent head radius, px (NaN before any); ``statistics.median``, not
+        ``np.median`` (its per-call overhead was ~20 us, once a frame)."""
+        return float(statistics.median(self.radii)) if self.radii else float("nan")
 
 
 def trunk_up(ridge_cov: np.ndarray) -> np.ndarray:
@@ -118,7 +114,7 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
 
     head_xy (2,) px (NaN = not found), head_area px^2 and head_conf of the head blob;
     ridge_xy (2,) px, ridge_cov (2, 2) px^2 the ridge band (NaN = none); skin (h, w) colour map
-    (``blobs.colour_mask``) of the person box whose top-left is ``origin`` (x, y) px.
+    (uint8 {0, 1} or float, >= 0.5 = skin) of the person box whose top-left is ``origin`` (x, y) px.
     """
     if not np.isfinite(ridge_xy).all():
         return None
@@ -141,14 +137,17 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
 
 def _best_head_region(skin: np.ndarray, ridge_xy: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float] | None:
     """(centroid (2,) array px, area px^2) of the connected skin region of ``skin`` (h, w)
-    that passes the head test best (``head_score``), or None."""
-    mask = colour_mask(skin)
-    n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    that passes the head test best (``head_score``), or None. The regions are the blob
+    stage's (``region_kernels.colour_regions``: ``cv2.connectedComponents``' order, so ties
+    go the same way)."""
+    h, w = skin.shape
+    n, stats = colour_regions(skin, 0, 0, w, h)
     best, best_score = None, np.inf
     for i in range(1, n):
-        area = float(stats[i, cv2.CC_STAT_AREA])
+        area = float(stats[i, 4])
         if area >= MIN_HEAD_AREA_PX:
-            score = head_score(cents[i], area, ridge_xy, up)
+            cent = stats[i, 5:7] / area
+            score = head_score(cent, area, ridge_xy, up)
             if score < best_score:
-                best, best_score = (np.asarray(cents[i], np.float64), area), score
+                best, best_score = (cent, area), score
     return best
