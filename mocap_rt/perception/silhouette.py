@@ -16,7 +16,6 @@ import numba
 import numpy as np
 
 
-
 @numba.njit(cache=True, nogil=True)
 def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b, sil, map_a, map_b):  # pragma: no cover
     """Silhouette and two colour maps of a box in one pass.
