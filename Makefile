@@ -47,10 +47,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP) kernels
 	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
 
-# TEST_JOBS=2: two pytest-xdist workers, a test module to each (its fixtures made once). Not the
-# default: on 2 cores two service clusters at once each get half the CPU their real-time frame
-# path was given, and a replay loses frames (a test saw 58 poses of 75 where it needs 60)
-TEST_JOBS ?= 1
+# two pytest-xdist workers (TEST_JOBS=1: one process): the service modules (tests/nodes/) go to
+# one worker as one unit, the library tests to the other at a lower priority (tests/conftest.py:
+# two service clusters at once on 2 cores lose frames)
+TEST_JOBS ?= 2
 test: system-deps $(STAMP)
 	$(MAKE) -j2 gst-bindings kernels      # PyGObject's build and the kernel warm-up side by side
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q --durations=15 \

@@ -6,6 +6,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+SERVICE_TESTS = "tests/nodes/"      # the modules that start service clusters, and their neighbours
+LIBRARY_NICENESS = 10               # of a library test beside a service cluster (``make test``, -n 2)
 
 
 def data_root() -> Path:
@@ -38,3 +40,33 @@ def warm_kernels() -> dict:
     out = subprocess.run(argv, capture_output=True, text=True, timeout=1200, cwd=REPO)
     assert out.returncode == 0, f"kernel warm-up failed: {out.stdout[-2000:]}{out.stderr[-2000:]}"
     return read_stamp()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """Under ``-n 2`` (``make test``): every module of ``tests/nodes/`` is ONE work unit, handed
+    out first, so one worker runs the service clusters one after another while the other takes
+    the library tests (two clusters at once on 2 cores lose frames); the rest goes by module."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ServicesApart(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return SERVICE_TESTS if nodeid.startswith(SERVICE_TESTS) else super()._split_scope(nodeid)
+
+        def _assign_work_unit(self, node) -> None:
+            if SERVICE_TESTS in self.workqueue:
+                self.workqueue.move_to_end(SERVICE_TESTS, last=False)
+            super()._assign_work_unit(node)
+
+    return ServicesApart(config, log)
+
+
+def pytest_runtest_setup(item):
+    """Beside a service cluster (an xdist worker), a library test runs at a lower priority:
+    the cluster's frame path keeps its core (a service test asks for its own back; only root may)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        service = item.nodeid.startswith(SERVICE_TESTS)
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, 0 if service else LIBRARY_NICENESS)
+        except PermissionError:
+            pass
