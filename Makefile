@@ -47,7 +47,7 @@ $(STAMP): pyproject.toml
 demo: $(STAMP) kernels
 	$(BIN)/python -m nodes.demo --out $(DEMO_DIR) --data $(DATA)
 
-# two pytest-xdist workers (TEST_JOBS=1: one process): the service modules (tests/nodes/) go to
+# two pytest-xdist workers (TEST_JOBS=1: one process): the modules that start clusters go to
 # one worker as one unit, the library tests to the other at a lower priority (tests/conftest.py:
 # two service clusters at once on 2 cores lose frames)
 TEST_JOBS ?= 2

@@ -6,7 +6,9 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SERVICE_TESTS = "tests/nodes/"      # the modules that start service clusters, and their neighbours
+SERVICE_TESTS = "service clusters"  # the xdist work unit of the modules that start whole clusters:
+SERVICE_MODULES = tuple(f"tests/nodes/test_nodes_{m}.py::" for m in (
+    "faults", "forged", "gst", "lifecycle", "netns", "replay_run", "service", "viewer_web"))
 LIBRARY_NICENESS = 10               # of a library test beside a service cluster (``make test``, -n 2)
 
 
@@ -44,14 +46,14 @@ def warm_kernels() -> dict:
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
-    """Under ``-n 2`` (``make test``): every module of ``tests/nodes/`` is ONE work unit, handed
-    out first, so one worker runs the service clusters one after another while the other takes
-    the library tests (two clusters at once on 2 cores lose frames); the rest goes by module."""
+    """Under ``-n 2`` (``make test``): the modules that start whole clusters are ONE work unit,
+    handed out first, so one worker runs the clusters one after another while the other takes
+    the rest, module by module (two clusters at once on 2 cores lose frames)."""
     from xdist.scheduler import LoadScopeScheduling
 
     class ServicesApart(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            return SERVICE_TESTS if nodeid.startswith(SERVICE_TESTS) else super()._split_scope(nodeid)
+            return SERVICE_TESTS if nodeid.startswith(SERVICE_MODULES) else super()._split_scope(nodeid)
 
         def _assign_work_unit(self, node) -> None:
             if SERVICE_TESTS in self.workqueue:
@@ -62,10 +64,10 @@ def pytest_xdist_make_scheduler(config, log):
 
 
 def pytest_runtest_setup(item):
-    """Beside a service cluster (an xdist worker), a library test runs at a lower priority:
-    the cluster's frame path keeps its core (a service test asks for its own back; only root may)."""
+    """Beside a service cluster (an xdist worker), the other tests run at a lower priority: the
+    cluster's frame path keeps its core (a cluster's test asks for its own back; only root may)."""
     if os.environ.get("PYTEST_XDIST_WORKER"):
-        service = item.nodeid.startswith(SERVICE_TESTS)
+        service = item.nodeid.startswith(SERVICE_MODULES)
         try:
             os.setpriority(os.PRIO_PROCESS, 0, 0 if service else LIBRARY_NICENESS)
         except PermissionError:

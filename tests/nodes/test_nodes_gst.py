@@ -145,9 +145,10 @@ def test_cluster_through_a_file_pipeline_gives_the_poses_of_replay(walk, tmp_pat
     recording's rate with a whole period as the deadline, so that every camera answers every
     frame even on a loaded machine."""
     seg = Recording(walk).segment_frames
-    _, ref = _run(walk, f"replay:{walk}", tmp_path / "replay")
+    duration_s = (seg + 8) / (30 * SPEED)        # the first segment, which both runs compare
+    _, ref = _run(walk, f"replay:{walk}", tmp_path / "replay", duration_s=duration_s)
     stats, got = _run(walk, f"gst:filesrc location={walk}/video/{{camera}}/seg_000000.avi ! avidemux ! avdec_mjpeg",
-                      tmp_path / "gst", backgrounds_from=walk, duration_s=(seg + 8) / (30 * SPEED))
+                      tmp_path / "gst", backgrounds_from=walk, duration_s=duration_s)
     assert all(n["restarts"] == 0 for n in stats["nodes"].values())
     common = np.intersect1d(ref["frames"][ref["frames"] < seg], got["frames"][got["frames"] < seg])
     assert len(common) >= seg - 2, (ref["frames"], got["frames"])
