@@ -15,7 +15,7 @@ brightness ratio along the background colour and a colour distortion across it::
 A pixel is foreground when its colour changed (``cd > k * noise``) or its brightness left
 the band that shadows and flicker can explain (``alpha < alpha_min`` or
 ``alpha > alpha_max``). Then (B.8) the largest 8-connected component is kept and its holes are
-filled (``cv2.findContours``). Everything runs inside a
+filled (``components.py``). Everything runs inside a
 region of interest (the previous person box plus a margin) for speed.
 """
 
@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import cv2
 import numba
 import numpy as np
+
+from mocap_rt.perception.components import largest_component_box
 
 log = logging.getLogger(__name__)
 
@@ -197,25 +199,14 @@ def keep_strong_boundary(sil, change):  # pragma: no cover - numba
 
 
 def largest_component_filled(mask: np.ndarray, min_area_px: int = 0) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-    """Largest 8-connected component of ``mask`` (h, w) uint8, holes filled (B.8).
-
-    The outer boundaries of the 8-connected components come from ``cv2.findContours``
-    (RETR_EXTERNAL); the largest component's boundary drawn filled is the component with
-    its holes filled. The three longest boundaries are ranked by enclosed area. (This is
-    ~0.15 ms on a 350x480 ROI; ``cv2.connectedComponentsWithStats`` alone takes ~0.6 ms.)
+    """Largest 8-connected component of ``mask`` (h, w) uint8, holes filled (B.8), from the rows'
+    pixel runs (``components.largest_component_box``; what ``cv2.findContours`` RETR_EXTERNAL +
+    ``cv2.drawContours`` FILLED of the largest outer boundary gave, ~3x faster on a person ROI).
 
     Returns (filled (h, w) uint8 {0, 255}, bbox (x, y, w, h) in mask pixels); an all-zero
-    mask and (0, 0, 0, 0) when no component encloses ``min_area_px`` pixels.
+    mask and (0, 0, 0, 0) when no component has ``min_area_px`` pixels.
     """
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     out = np.zeros_like(mask)
-    if not contours:
-        return out, (0, 0, 0, 0)
-    longest = sorted(contours, key=len, reverse=True)[:3]
-    areas = [cv2.contourArea(c) + 0.5 * len(c) for c in longest]   # + half the boundary pixels
-    k = int(np.argmax(areas))
-    if areas[k] < max(1, min_area_px):
-        return out, (0, 0, 0, 0)
-    cv2.drawContours(out, longest, k, 255, thickness=cv2.FILLED)
-    x, y, w, h = cv2.boundingRect(longest[k])
-    return out, (int(x), int(y), int(w), int(h))
+    box, (x, y, w, h) = largest_component_box(mask, min_area_px)
+    out[y:y + h, x:x + w] = box
+    return out, (x, y, w, h)

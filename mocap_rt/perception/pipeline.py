@@ -29,7 +29,8 @@ from mocap_rt.config import load_dataclass
 from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette, CuePrediction
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.names import C_HEAD, C_TORSO, CUE_NAMES, N_CUES, SHOE_CUE_INDEX, SHOE_CUES, SKIN_CUE_INDEX, SKIN_CUES
-from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, largest_component_filled
+from mocap_rt.perception.background import BackgroundModel, ChangeThresholds
+from mocap_rt.perception.components import largest_component_box
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_model_from_spec
 from mocap_rt.perception.roi import ChangeMask, roi_candidates
@@ -223,7 +224,7 @@ class CameraPerceiver:
             mask = self._change.extend(img, self.background, cfg.change, (rx0, ry0, rx1, ry1))
             if self._close_kernel is not None:
                 mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._close_kernel)
-            filled, (cx, cy, cw, ch) = largest_component_filled(mask, cfg.min_person_area_px)
+            member, (cx, cy, cw, ch) = largest_component_box(mask, cfg.min_person_area_px)
             touches = cw > 0 and ((cx == 0 and rx0 > 0) or (cy == 0 and ry0 > 0) or
                                   (cx + cw == rw and rx1 < w) or (cy + ch == rh and ry1 < h))
             if cw > 0 and not touches:
@@ -238,7 +239,7 @@ class CameraPerceiver:
         change = mask[cy:cy + ch, cx:cx + cw]
         if cfg.change.edge_strength <= 1.0:
             change = np.full_like(change, 255)      # no boundary clean-up
-        return filled[cy:cy + ch, cx:cx + cw], change, box
+        return member, change, box
 
     @staticmethod
     def _top_point(sil: np.ndarray) -> tuple[float, float]:

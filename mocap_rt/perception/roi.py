@@ -3,7 +3,7 @@ change mask that grows with them without testing a pixel twice.
 
 The person's component has to lie inside the region searched without touching its edge
 (``pipeline.CameraPerceiver._silhouette``); the smaller the region, the less the change test
-and ``cv2.findContours`` cost (both scale with its area, together ~60 % of a frame). The
+and the component search cost (both scale with its area). The
 candidates, tried in turn until the component does not touch the region's edge:
 
 1. **motion ROI** (``motion_px`` > 0 and two previous boxes): each side of the last box
