@@ -58,6 +58,15 @@ class CompactSilhouette:
         h, w = self.mask.shape
         return h * ((w + 7) // 8)
 
+    @staticmethod
+    def step_for(bw: int, bh: int, max_bytes: int = SILHOUETTE_MAX_BYTES) -> int:
+        """The smallest cell size >= SILHOUETTE_MIN_STEP whose packed mask of a (bh, bw) box
+        fits ``max_bytes``."""
+        step = SILHOUETTE_MIN_STEP
+        while (-(-bh // step)) * ((-(-bw // step) + 7) // 8) > max_bytes:
+            step += 1
+        return step
+
     @classmethod
     def from_box_mask(cls, sil: np.ndarray, box: tuple[int, int, int, int],
                       max_bytes: int = SILHOUETTE_MAX_BYTES) -> "CompactSilhouette":
@@ -70,9 +79,7 @@ class CompactSilhouette:
         x, y, bw, bh = (int(v) for v in box)
         if sil.shape != (bh, bw):
             raise ValueError(f"silhouette {sil.shape} does not match box {box}")
-        step = SILHOUETTE_MIN_STEP
-        while (-(-bh // step)) * ((-(-bw // step) + 7) // 8) > max_bytes:
-            step += 1
+        step = cls.step_for(bw, bh, max_bytes)
         h, w = -(-bh // step), -(-bw // step)
         if h == 0 or w == 0:
             return cls(x, y, step, np.zeros((0, 0), bool))

@@ -35,7 +35,7 @@ from mocap_rt.perception.blobs import BlobParams, BlobTracker
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_model_from_spec
 from mocap_rt.perception.roi import ChangeMask, roi_candidates
 from mocap_rt.perception.scene import TORSO_HEAD_RADII, SceneState, check_head, torso_from_head
-from mocap_rt.perception.silhouette import silhouette_colour
+from mocap_rt.perception.silhouette import half_cells, silhouette_colour
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
 
 log = logging.getLogger(__name__)
@@ -203,8 +203,10 @@ class CameraPerceiver:
         t4 = time.perf_counter()
         if self.config.background_update_rate > 0:
             self.background.update(img, self.last_silhouette, self.config.background_update_rate)
-        compact = (CompactSilhouette.from_box_mask(sil, box, self.config.silhouette_bytes)
-                   if self.config.silhouette_bytes > 0 else None)
+        compact = None
+        if self.config.silhouette_bytes > 0:
+            step = CompactSilhouette.step_for(bw, bh, self.config.silhouette_bytes)
+            compact = CompactSilhouette(bx, by, step, half_cells(sil, step))
         t5 = time.perf_counter()
         timings = {"silhouette": (t1 - t0) * 1e3, "colour": (t2 - t1) * 1e3, "blobs": (t3 - t2) * 1e3,
                    "torso": (t4 - t3) * 1e3, "total": (t5 - t0) * 1e3}

@@ -1,13 +1,15 @@
 """The fused silhouette clean-up + colour pass (``perception.silhouette``) against its two
-separate references: OpenCV morphology for the boundary rule, the NumPy colour model."""
+separate references: OpenCV morphology for the boundary rule, the NumPy colour model; the
+compact silhouette's cells against a plain count and OpenCV's area mean."""
 
 import cv2
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mocap_rt.cues import CompactSilhouette
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, default_colour_model
-from mocap_rt.perception.silhouette import silhouette_colour
+from mocap_rt.perception.silhouette import half_cells, silhouette_colour
 
 TRUE_COEFFS = np.array([[-0.0025, 1.70], [0.0002, 0.92], [0.0023, 0.38]])
 
@@ -97,3 +99,22 @@ def test_silhouette_colour_is_exactly_the_two_stages(seed, w, h):
     np.testing.assert_array_equal(sil, ref_sil)
     np.testing.assert_array_equal(map_a, ref_a)
     np.testing.assert_array_equal(map_b, ref_b)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 120), st.integers(1, 120), st.integers(2, 5), st.floats(0.0, 1.0), st.integers(0, 2**31 - 1))
+def test_half_cells_equal_the_compact_silhouettes_area_mean(bh, bw, step, density, seed):
+    """``half_cells`` (counting) gives the cells of ``CompactSilhouette.from_box_mask``
+    (OpenCV's area mean >= 0.5) and of a plain count over the zero-padded box."""
+    rng = np.random.default_rng(seed)
+    sil = (rng.random((bh, bw)) < density).astype(np.uint8) * 255
+    got = half_cells(sil, step)
+    h, w = -(-bh // step), -(-bw // step)
+    pad = np.zeros((h * step, w * step), np.int64)
+    pad[:bh, :bw] = sil > 0
+    counts = pad.reshape(h, step, w, step).sum(axis=(1, 3))
+    np.testing.assert_array_equal(got, 2 * counts >= step * step)
+    max_bytes = h * ((w + 7) // 8)              # a budget that this step fits
+    compact = CompactSilhouette.from_box_mask(sil, (3, 4, bw, bh), max_bytes)
+    assert compact.step <= step
+    np.testing.assert_array_equal(half_cells(sil, compact.step), compact.mask)
