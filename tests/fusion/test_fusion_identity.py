@@ -51,13 +51,14 @@ def test_decide_switches_on_consistent_evidence_and_never_on_noise():
     gain = 2.0
     need = cfg.switch_evidence * cfg.acquire_factor
     n_expected = int(np.ceil(np.log(1 - need * (1 - cfg.decay) / gain) / np.log(cfg.decay)))
-    switched_at = None
+    switched_at = taken = None
     for n in range(1, 40):
         costs = np.array([10.0, 30.0, 10.0 - gain, 50.0])
-        if decide(state, costs, cfg) >= 0:
+        taken = decide(state, costs, cfg)
+        if taken >= 0:
             switched_at = n
             break
-    assert switched_at in (n_expected, n_expected + 1)        # > vs >= at the boundary
+    assert taken == feet and switched_at in (n_expected, n_expected + 1)   # > vs >= at the boundary
     assert state.switches == 1 and np.all(state.evidence == 0)
     # alternating evidence (noise) never switches, however long it lasts
     state = IdentityState()
