@@ -22,6 +22,15 @@ wrong fits the mirror 1-2 units better than the hands swap, the feet labels bare
 and must not exchange its right feet). During the first ``acquire_frames`` of a
 track the threshold is ``acquire_factor`` times lower, so a cold start on any motion
 takes the right identity within a few frames, without a calibration pose.
+
+Legs cannot pass through each other (``crossed_legs_cm2``): drawn from the last pose's hips
+to the feet cues, the two legs' lines must stay a shin's radius apart. Where the current feet
+labels bring them closer and the exchanged labels do not, the depth by which they would pass
+through each other (cm^2) is credited to the feet alternative that frame: feet that came out
+of a touch exchanged, standing apart side by side, are put right within a few frames, where
+the silhouettes and limits gain 2-5 units a frame against the debt of the right past. Only a
+credit, never a debit: the exchanged labels' impossibility while the labels are right is no
+evidence of anything and must not pile up a debt that a later exchange has to repay.
 """
 
 from __future__ import annotations
@@ -33,6 +42,7 @@ import numpy as np
 from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.silhouette import SilhouetteTargets
 from mocap_rt.names import C_HEAD, C_TORSO, LR_PAIRS
+from mocap_rt.studio.body_shape import SHIN_RADIUS_M
 
 # the alternatives to the current labelling, and the cue pairs each one exchanges
 ALTERNATIVES = ("hands", "feet", "mirror")
@@ -40,6 +50,9 @@ HANDS, FEET = LR_PAIRS
 ALTERNATIVE_PAIRS = ((HANDS,), (FEET,), (HANDS, FEET))
 _MIRROR = ALTERNATIVES.index("mirror")
 _SINGLE = tuple(k for k in range(len(ALTERNATIVES)) if k != _MIRROR)
+# Two legs' lines (hip -> foot cue) closer than this (m) pass through each other: a shin's radius
+# (the studio's body; the truth's legs keep 5-15 cm on every suite clip)
+LEG_CLEARANCE_M = SHIN_RADIUS_M
 # the swivel slots (arm_l, arm_r, leg_l, leg_r) each alternative exchanges
 _SWIVEL_ORDER = (np.array([1, 0, 2, 3]), np.array([0, 1, 3, 2]), np.array([1, 0, 3, 2]))
 
@@ -58,6 +71,7 @@ class IdentityConfig:
     frame_margin_frac: float = 0.0  # ... plus this fraction of the current cost (a poor fit decides nothing)
     acquire_frames: int = 15        # the first frames of a track ...
     acquire_factor: float = 0.5     # ... switch on this fraction of the evidence
+    crossed_legs_weight: float = 1.0  # per cm^2 of legs passing through each other (crossed_legs_cm2); 0 = off
 
 
 @dataclass
@@ -124,6 +138,46 @@ def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray
             costs[h] = fitter.fit(X, axes, None, targets, search_swivel=False,
                                   pan_search_deg=config.pan_search_deg, pan_refine=config.pan_refine).cost
     return costs
+
+
+def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> float:
+    """Least distance between the segments p1-q1 and p2-q2 (3,) (closest points with clamped
+    parameters, Ericson, Real-Time Collision Detection, 5.1.9), in their units."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e, f = float(d1 @ d1), float(d2 @ d2), float(d2 @ r)
+    eps = 1e-12
+    if a <= eps and e <= eps:
+        return float(np.linalg.norm(r))
+    if a <= eps:
+        s, t = 0.0, float(np.clip(f / e, 0.0, 1.0))
+    else:
+        c = float(d1 @ r)
+        if e <= eps:
+            s, t = float(np.clip(-c / a, 0.0, 1.0)), 0.0
+        else:
+            b = float(d1 @ d2)
+            den = a * e - b * b
+            s = float(np.clip((b * f - c * e) / den, 0.0, 1.0)) if den > eps else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                s, t = float(np.clip(-c / a, 0.0, 1.0)), 0.0
+            elif t > 1.0:
+                s, t = float(np.clip((b - c) / a, 0.0, 1.0)), 1.0
+    return float(np.linalg.norm(p1 + s * d1 - (p2 + t * d2)))
+
+
+def crossed_legs_cm2(hips: np.ndarray | None, cues: np.ndarray, clearance_m: float = LEG_CLEARANCE_M) -> float:
+    """How deep (cm^2) the legs, drawn as lines from the ``hips`` (2, 3) (left, right, metres,
+    world; a recent pose's) to the feet ``cues`` (6, 3), pass through each other: ``(clearance
+    - d)^2`` where their distance d is under ``clearance_m`` and the exchanged feet's legs keep
+    at least ``clearance_m``; else 0 (legs apart, or both labellings crossed: feet together)."""
+    fl, fr = FEET
+    if hips is None or not np.isfinite(cues[[fl, fr]]).all() or not np.isfinite(hips).all():
+        return 0.0
+    d = segment_distance(hips[0], cues[fl], hips[1], cues[fr])
+    if d >= clearance_m or segment_distance(hips[0], cues[fr], hips[1], cues[fl]) < clearance_m:
+        return 0.0
+    return 1e4 * (clearance_m - d) ** 2
 
 
 def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> int:

@@ -50,8 +50,8 @@ from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState, decide,
-                                      fill_missing, score_hypotheses, swap_pairs)
+from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
+                                      crossed_legs_cm2, decide, fill_missing, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, frontal_pair, predict_views,
                                    reject_duplicates, triangulate_cues)
@@ -75,6 +75,8 @@ VIEW_MODES = ("all", "pair")
 _CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
 _NO_CUES = np.zeros(N_CUES, dtype=bool)
 IK_MODES = ("analytic", "ccd")
+_HIPS = [J["hip_l"], J["hip_r"]]
+_FEET_ALT = ALTERNATIVES.index("feet")
 
 
 @dataclass(frozen=True)
@@ -133,6 +135,7 @@ class BodyTracker:
         self._right: np.ndarray | None = None
         self._axes: np.ndarray | None = None      # the last frame's body axes
         self._last_pose: tuple[np.ndarray, np.ndarray] | None = None
+        self._hips: np.ndarray | None = None      # the last pose's hips (2, 3), for the legs' crossing
         self._pair: tuple[int, int] | None = None
         self._vel: np.ndarray | None = None
         self._swivel = np.zeros(4)   # elbow/knee pole swivels (analytic.refine_swivel)
@@ -337,6 +340,7 @@ class BodyTracker:
             root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
             pan = pan_angle(axes)
             self._last_pose = (root, angles)
+            self._hips = joints[_HIPS].copy()
             joint_valid = joint_validity(have)
         calib_sample = (np.where(valid[:, None], X, np.nan), axes)
         if scored is None:
@@ -362,6 +366,7 @@ class BodyTracker:
         if not self.filter.alive[[C_HEAD, C_TORSO]].all():
             self.identity.reset()        # the body (re)starts: acquire afresh, heading unknown
             self._axes = None
+            self._hips = None
         if not self.config.identity.enabled:
             return None
         cues = np.where(valid[:, None], X, pred)
@@ -404,9 +409,12 @@ class BodyTracker:
         costs = score_hypotheses(self._fitter, cues, self._rest_cues, prev_axes, targets, cfg)
         if targets is None or targets.n_views == 0:
             costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
+        # legs that pass through each other: a credit to the feet alternative (identity module doc)
+        costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(self._hips, cues)
         k = decide(self.identity, costs, cfg)
         if k < 0:
             return k
+        self._hips = None                # fitted on the labels just found wrong
         for a, b in ALTERNATIVE_PAIRS[k]:
             self.filter.swap(a, b)
         if ALTERNATIVES[k] == "mirror" and self._right is not None:

@@ -41,3 +41,18 @@ def kick_reversed(tmp_path_factory, data_dir):
     synthesize(bvh, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=0.5, start_s=0.0, seed=3,
                motion_name=name)
     return out
+
+
+@pytest.fixture(scope="session")
+def turn_in_place(tmp_path_factory):
+    """The procedural turn on the spot (seed 0), 2.5 s from 0.8 s as the suite plays it: the feet
+    step apart and together, touching at frames 36-40 and 62-68 and standing 20-25 cm apart side
+    by side in between; 6-camera ring at 320x240, 30 fps, with truth and silhouettes."""
+    from mocap_rt.studio.synth import make_rig, synthesize
+    from mocap_rt.studio.variants import load_motion
+
+    clip, name = load_motion("procedural:turn_in_place:0")
+    out = tmp_path_factory.mktemp("turn_in_place") / "rec"
+    synthesize(clip, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=2.5, start_s=0.8, seed=3,
+               motion_name=name)
+    return out

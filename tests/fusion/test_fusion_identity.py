@@ -5,8 +5,8 @@ import pytest
 
 from mocap_rt.fusion.evaluate import heading_deg, mirrored_frames, truth_camera_cues, wrap_deg
 from mocap_rt.fusion.filter import CueFilter
-from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState, decide,
-                                      swap_pairs, swap_swivel)
+from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
+                                      crossed_legs_cm2, decide, segment_distance, swap_pairs, swap_swivel)
 from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
 from mocap_rt.io.recording import Recording
 from mocap_rt.names import CUE_NAMES, J
@@ -190,3 +190,51 @@ def test_closed_loop_backwards_walk_is_not_mirrored(backwards_walk, tmp_path):
     assert np.nansum(mir[ACQUIRE_FRAMES:]) == 0, f"mirrored frames: {np.flatnonzero(mir == 1)}"
     assert np.nanmax(herr[ACQUIRE_FRAMES:]) < 60.0
     assert out.accuracy.mpjpe_mm < 100.0
+
+
+def test_feet_exchanged_side_by_side_are_put_right_within_frames(turn_in_place):
+    """Turning on the spot, the feet touch (frames 36-40) and step apart side by side, 20-25 cm:
+    if the labels came out of the touch exchanged (the tracks are exchanged here, so every view
+    agrees with the wrong prediction), the legs drawn from the hips to the exchanged feet pass
+    through each other, which no body can do; the silhouettes and the limits alone favour the
+    right feet by only 2-5 units a frame against a debt of tens from the frames before."""
+    at = 46
+    _, tj, err, switches, _ = _truth_run(turn_in_place, swap_feet=False, swap_tracks_at=at)
+    apart = np.linalg.norm(tj[:, J["foot_l"]] - tj[:, J["foot_r"]], axis=1)
+    assert np.all(apart[at:at + 8] > 0.18)                        # side by side, well apart
+    assert np.percentile(err[ACQUIRE_FRAMES:at], 95) < 0.03       # right before ...
+    assert err[at].min() > 0.1                                    # ... wrong at once ...
+    assert np.max(err[at + 4:at + 10]) < 0.03                     # ... and right again within 4 frames
+
+
+def test_segment_distance_matches_dense_sampling():
+    """Closest points of two segments against a brute force over 401 x 401 samples of each,
+    including parallel, touching and degenerate (point) segments."""
+    rng = np.random.default_rng(4)
+    t = np.linspace(0.0, 1.0, 401)[:, None]
+    cases = [rng.normal(size=(4, 3)) for _ in range(40)]
+    p = rng.normal(size=3)
+    cases += [np.array([p, p + [1.0, 0, 0], p + [0, 0.3, 0], p + [2.0, 0.3, 0]]),     # parallel, overlapping
+              np.array([p, p + [1.0, 0, 0], p + [0.5, -1, 0], p + [0.5, 1, 0]]),       # crossing: 0
+              np.array([p, p, p + [0, 0, 1.0], p + [1.0, 0, 1.0]])]                    # a point
+    for p1, q1, p2, q2 in cases:
+        a, b = p1 + t * (q1 - p1), p2 + t * (q2 - p2)
+        brute = np.min(np.linalg.norm(a[:, None] - b[None], axis=-1))
+        assert segment_distance(p1, q1, p2, q2) == pytest.approx(brute, abs=3e-3)
+        assert segment_distance(p1, q1, p2, q2) <= brute + 1e-12
+
+
+def test_true_legs_never_pass_through_each_other_exchanged_ones_do(turn_in_place):
+    """Studio truth of the turn on the spot: with the truth's labels the legs (hips -> feet cues)
+    never cross (no frame is credited), with the feet exchanged they do in most frames where
+    the feet stand apart; with the feet together (touching) neither labelling is credited."""
+    rec = Recording(turn_in_place)
+    joints, cues = np.asarray(rec.truth["joints"]), np.asarray(rec.truth["cues"])
+    rec.close()
+    hips = joints[:, [J["hip_l"], J["hip_r"]]]
+    right = np.array([crossed_legs_cm2(h, c) for h, c in zip(hips, cues)])
+    exchanged = np.array([crossed_legs_cm2(h, swap_pairs(c, ALTERNATIVES.index("feet"))) for h, c in zip(hips, cues)])
+    apart = np.linalg.norm(cues[:, FL] - cues[:, FR], axis=1)
+    assert np.all(right == 0.0)
+    assert np.mean(exchanged[apart > 0.15] > 5.0) > 0.8
+    assert np.all(exchanged[apart < 0.05] == 0.0)
