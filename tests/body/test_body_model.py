@@ -11,7 +11,7 @@ from mocap_rt.body.kinematics import (angles_from_frames, angles_from_quaternion
                                       euler_xyz_matrix, forward_kinematics, quaternions_from_angles)
 from mocap_rt.body.skeleton import (END_EFFECTORS, J, N_JOINTS, BoneLengths, body_model, read_bone_lengths,
                                     write_bone_lengths)
-from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES
+from mocap_rt.names import C_HAND_L, C_HAND_R, CUE_JOINT_INDEX, JOINT_NAMES
 
 angle = st.floats(-3.0, 3.0)
 
@@ -136,3 +136,30 @@ def test_end_effectors_are_leaves():
     m = body_model()
     for name in END_EFFECTORS:
         assert m.children(J[name]) == []
+
+
+def test_limb_lengths_from_cues_do_not_depend_on_the_fitted_axes_or_labels():
+    """The fit's body axes of the first frames can be badly wrong (jumping jacks: the trunk
+    tilted 60 deg, the body mirrored) and the hands' labels swapped: the arm and leg lengths
+    estimated from the cues of near-straight limbs stay those of the body that made them."""
+    rng = np.random.default_rng(11)
+    L = BoneLengths().scaled(1.05)
+    L = BoneLengths(**{**L.__dict__, "upper_arm_m": L.upper_arm_m * 0.85, "forearm_m": L.forearm_m * 0.85,
+                       "hand_m": L.hand_m * 0.85})
+    m = body_model(L)
+    joints = np.array([forward_kinematics(m, rng.normal(size=3) * [1, 1, 0], random_angles(m, rng, (0.45, 0.55)) * 0.1)[0]
+                       for _ in range(60)])
+    cues = joints[:, list(CUE_JOINT_INDEX)]
+    right = joints[:, J["hip_r"]] - joints[:, J["hip_l"]]
+    up = joints[:, J["neck"]] - joints[:, J["pelvis"]]
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    axes = np.stack([right, np.cross(up, right), up], axis=2)                  # columns right, fwd, up
+    wrong = Rotation.from_euler("yz", [60, 180], degrees=True).as_matrix() @ axes   # tilted, mirrored
+    swapped = cues.copy()
+    swapped[::3, [C_HAND_R, C_HAND_L]] = cues[::3, [C_HAND_L, C_HAND_R]]      # hands' labels exchanged
+    arm = L.upper_arm_m + L.forearm_m + L.hand_m
+    for c, ax in ((cues, axes), (cues, wrong), (swapped, wrong), (swapped, None)):
+        est = estimate_bone_lengths(c, BoneLengths(), ax)
+        assert est.upper_arm_m + est.forearm_m + est.hand_m == pytest.approx(arm, rel=0.04)
+        assert est.thigh_m == pytest.approx(L.thigh_m, rel=0.04)
