@@ -18,6 +18,7 @@ from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TOR
 MIN_FRAMES = 10  # fewer valid frames than this: no estimate
 LEG_PERCENTILE = 90.0
 ARM_PERCENTILE = 97.0
+MAX_TILT_DEG = 45.0  # a fitted trunk farther than this from the torso -> head line is not the person's
 
 
 def _mean_dist(joints: np.ndarray, a: str, b: str) -> float:
@@ -58,16 +59,6 @@ def _percentile(x: np.ndarray, q: float) -> float | None:
     return float(np.percentile(x, q)) if x.size >= MIN_FRAMES else None
 
 
-def _from_ring(p: np.ndarray, centre: np.ndarray, up: np.ndarray, radius: float) -> np.ndarray:
-    """(F,) distance from points ``p`` (F, 3) to the nearest point of the horizontal ring of
-    ``radius`` about ``centre`` (F, 3) (normal ``up`` (F, 3), unit): where the two shoulders
-    (hips) can be, whatever the heading."""
-    v = p - centre
-    along = np.einsum("fi,fi->f", v, up)
-    across = np.linalg.norm(v - along[:, None] * up, axis=1)
-    return np.hypot(along, across - radius)
-
-
 def estimate_bone_lengths(cues: np.ndarray, base: BoneLengths | None = None,
                           axes: np.ndarray | None = None) -> BoneLengths | None:
     """Scale ``base`` to the subject from 3D cues (F, 6, 3) metres (NaN = missing).
@@ -82,13 +73,13 @@ def estimate_bone_lengths(cues: np.ndarray, base: BoneLengths | None = None,
     * upper arm, forearm, hand: the ``ARM_PERCENTILE`` shoulder - hand distance (arms
       near straight) against their sum.
 
-    A hand or foot is measured from the nearer shoulder or hip, whatever its label (the
-    labels and the heading of the first seconds may still be mirrored).
-
     Hips and shoulders are placed with the body frames ``axes`` (F, 3, 3) (columns
     right, forward, up, as ``analytic.body_axes``); without them, at the pelvis/neck on
-    the torso -> head line (then the widths are ignored). Missing groups keep the trunk
-    scale. Returns None when the head - torso distance has fewer than ``MIN_FRAMES`` frames.
+    the torso -> head line (then the widths are ignored). A frame whose fitted up axis is
+    more than ``MAX_TILT_DEG`` from its torso -> head line is left out of the limbs: there
+    the fit is not the person (the first frames of jumping jacks, tilted 60 deg, made the arms
+    47 % too long). Missing groups keep the trunk scale. Returns None when the head - torso
+    distance has fewer than ``MIN_FRAMES`` frames.
     """
     base = base or BoneLengths()
     cues = np.asarray(cues, dtype=np.float64).reshape(-1, N_CUES, 3)
@@ -98,12 +89,14 @@ def estimate_bone_lengths(cues: np.ndarray, base: BoneLengths | None = None,
         return None
     s_trunk = ht / (base.trunk_m / 2 + base.neck_head_m)
     tr = base.scaled(s_trunk)
-    unit_up = up / np.linalg.norm(up, axis=1, keepdims=True)
-    right = None
-    if axes is not None:
-        r = np.asarray(axes, dtype=np.float64).reshape(-1, 3, 3)[:, :, 0]
-        r = r - np.einsum("fi,fi->f", r, unit_up)[:, None] * unit_up
-        right = r / np.linalg.norm(r, axis=1, keepdims=True)
+    if axes is None:
+        unit_up = up / np.linalg.norm(up, axis=1, keepdims=True)
+        right = np.zeros_like(up)
+    else:
+        axes = np.asarray(axes, dtype=np.float64).reshape(-1, 3, 3)
+        unit_up, right = axes[:, :, 2], axes[:, :, 0]
+        cos_tilt = np.einsum("fi,fi->f", unit_up, up) / np.linalg.norm(up, axis=1)
+        cues = np.where((cos_tilt >= np.cos(np.radians(MAX_TILT_DEG)))[:, None, None], cues, np.nan)
     pelvis = cues[:, C_TORSO] - unit_up * (tr.trunk_m / 2)
     neck = cues[:, C_TORSO] + unit_up * (tr.trunk_m / 2)
     scales = {}
@@ -113,11 +106,8 @@ def estimate_bone_lengths(cues: np.ndarray, base: BoneLengths | None = None,
               ("arm", neck, tr.shoulder_half_width_m, (C_HAND_L, C_HAND_R), ARM_PERCENTILE,
                base.upper_arm_m + base.forearm_m + base.hand_m))
     for name, centre, half, (cl, cr), q, model_len in groups:
-        if right is None:
-            d = np.concatenate([_from_ring(cues[:, c], centre, unit_up, half) for c in (cl, cr)])
-        else:
-            ends = (centre - right * half, centre + right * half)
-            d = np.concatenate([np.fmin(*(np.linalg.norm(cues[:, c] - e, axis=1) for e in ends)) for c in (cl, cr)])
+        d = np.concatenate([np.linalg.norm(cues[:, cl] - (centre - right * half), axis=1),
+                            np.linalg.norm(cues[:, cr] - (centre + right * half), axis=1)])
         obs = _percentile(d, q)
         scales[name] = s_trunk if obs is None else max(0.5, obs / model_len)
     s_leg, s_arm = scales["leg"], scales["arm"]
