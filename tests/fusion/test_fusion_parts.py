@@ -35,6 +35,32 @@ def test_kalman_gates_outliers_and_drops_stale_tracks():
     assert acc[0] and np.allclose(f.pos[0], [2, 0, 1])
 
 
+def test_a_track_started_on_an_outlier_moves_to_the_steady_point_it_rejects():
+    """Jumping jacks' first frames: the head track starts on the hands clasped above the head
+    (0.35 m up) and flies off with their velocity; the head, measured steadily from then on,
+    is rejected by the gate. After ``confirm_frames`` mutually consistent rejections the track
+    restarts there (not after ``max_coast_s``); measurements that jump about (each farther
+    than the gate from the one before) never take a live track over."""
+    cfg = FilterConfig(gate_m=0.35, max_coast_s=0.5, confirm_frames=3)
+    f = CueFilter(1, cfg)
+    hands = np.array([[0.0, 0.0, 1.9]])
+    head = np.array([[0.05, -0.2, 1.56]])
+    for k in range(3):
+        f.update(k / 30, hands + [[0.12 * k, 0.05 * k, 0.0]])   # the track learns a wild velocity
+    for k in range(3, 3 + cfg.confirm_frames):
+        acc = f.update(k / 30, head + np.random.default_rng(k).normal(0, 0.003, (1, 3)))
+        assert acc[0] == (k == 2 + cfg.confirm_frames)
+    np.testing.assert_allclose(f.pos[0], head[0], atol=0.01)
+    assert f.predict_at((3 + cfg.confirm_frames) / 30)[0, 2] == pytest.approx(1.56, abs=0.01)
+    # a live track on the head: outliers in every frame for 0.33 s, each more than the gate from
+    # the one before, never take it over; the head is taken up again when it is seen
+    for k in range(10, 20):
+        outlier = head + [[0.5 * (-1) ** k, 0.1 * (k % 3), 0.45]]
+        assert not f.update(k / 30, outlier)[0]
+        np.testing.assert_allclose(f.pos[0], head[0], atol=0.01)
+    assert f.update(20 / 30, head)[0]
+
+
 def test_rig_projector_matches_camera_project():
     rig = ring_rig()
     X = np.random.default_rng(1).normal([0, 0, 1], 0.6, (8, 3))
