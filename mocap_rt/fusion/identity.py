@@ -51,7 +51,8 @@ ALTERNATIVE_PAIRS = ((HANDS,), (FEET,), (HANDS, FEET))
 _MIRROR = ALTERNATIVES.index("mirror")
 _SINGLE = tuple(k for k in range(len(ALTERNATIVES)) if k != _MIRROR)
 # Two legs' lines (hip -> foot cue) closer than this (m) pass through each other: a shin's radius
-# (the studio's body; the truth's legs keep 5-15 cm on every suite clip)
+# (the studio's body). The truth's hip -> ankle lines keep >= 5 cm on every suite clip; its hip ->
+# foot-cue lines come closer only with the feet touching, where the exchanged labels' do too
 LEG_CLEARANCE_M = SHIN_RADIUS_M
 # the swivel slots (arm_l, arm_r, leg_l, leg_r) each alternative exchanges
 _SWIVEL_ORDER = (np.array([1, 0, 2, 3]), np.array([0, 1, 3, 2]), np.array([1, 0, 3, 2]))
