@@ -13,10 +13,11 @@ the three axes (isotropic measurement noise, white-acceleration process noise):
 with ``q = accel_noise_mps2^2 * dt`` style spectral density ``accel_psd`` (m^2/s^3).
 A measurement farther than ``gate_m`` from the prediction is rejected, unless it lies
 within ``gate_m`` of the last accepted measurement (the prediction ran off after a bad
-update), or the track has coasted for more than ``max_coast_s``, or the rejected
-measurements of ``confirm_frames`` frames in a row agree with each other (each within
-``gate_m`` of the one before: a steady point the track is not on, e.g. a head track
-started on the hands clasped above it): then the track restarts on the measurement.
+update), or the track has coasted for more than ``max_coast_s``, or ``confirm_frames``
+rejected measurements agree with each other (each within ``gate_m`` of the one before and
+within ``confirm_window_s`` of it, accepted ones in between or not: a steady point the track
+is not on, e.g. a head track started on the hands clasped above it while perception's head
+check puts the head back every few frames): then the track restarts on the measurement.
 While coasting the velocity decays (``coast_velocity_decay_s``), so a lost cue stays
 near where it was last seen instead of drifting away.
 """
@@ -40,7 +41,8 @@ class FilterConfig:
     max_coast_s: float = 0.5           # after this long without an update a track is dropped
     coast_velocity_decay_s: float = 0.1  # a coasting track's velocity decays with this time constant
     initial_velocity_std_mps: float = 1.0
-    confirm_frames: int = 3            # rejected but mutually consistent this many frames: restart there
+    confirm_frames: int = 3            # rejected but mutually consistent this many times: restart there
+    confirm_window_s: float = 0.3      # ... each within this long of the one before
 
 
 class CueFilter:
@@ -59,7 +61,8 @@ class CueFilter:
         self.last_update_s = np.full(n, -np.inf)
         self.last_meas = np.full((n, 3), np.nan)
         self.last_rejected = np.full((n, 3), np.nan)
-        self.rejected_run = np.zeros(n, dtype=np.int64)   # frames in a row of consistent rejections
+        self.rejected_run = np.zeros(n, dtype=np.int64)   # consistent rejections so far
+        self.last_rejected_s = np.full(n, -np.inf)
         self.time_s: float | None = None
 
     def _propagate(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -101,12 +104,15 @@ class CueFilter:
         # one bad measurement gave a wild velocity) restarts the track there
         near_last = np.linalg.norm(z - self.last_meas, axis=1) <= cfg.gate_m
         start = has & (~self.alive | (~ok & near_last))
-        # rejected measurements that agree with each other frame after frame: the track is
-        # on something else (it started on an outlier); after confirm_frames it restarts there
+        # rejected measurements that agree with each other, time after time: the track is on
+        # something else (it started on an outlier); after confirm_frames it restarts there
         rejected = has & ~ok & ~start
-        steady = np.linalg.norm(z - self.last_rejected, axis=1) <= cfg.gate_m
-        self.rejected_run = np.where(rejected, np.where(steady, self.rejected_run + 1, 1), 0)
-        self.last_rejected = np.where(rejected[:, None], z, np.nan)
+        recent = (time_s - self.last_rejected_s) <= cfg.confirm_window_s
+        steady = recent & (np.linalg.norm(z - self.last_rejected, axis=1) <= cfg.gate_m)
+        self.rejected_run = np.where(rejected, np.where(steady, self.rejected_run + 1, 1),
+                                     np.where(recent, self.rejected_run, 0))
+        self.last_rejected = np.where(rejected[:, None], z, self.last_rejected)
+        self.last_rejected_s = np.where(rejected, time_s, self.last_rejected_s)
         start |= self.rejected_run >= cfg.confirm_frames
         # Kalman update for accepted measurements (shared 2x2 covariance per point)
         S = self.cov[:, 0, 0] + cfg.measurement_noise_m ** 2
@@ -124,7 +130,7 @@ class CueFilter:
         self.cov[start] = np.diag([cfg.measurement_noise_m ** 2, cfg.initial_velocity_std_mps ** 2])
         self.alive |= start
         self.rejected_run[start] = 0
-        self.last_rejected[start] = np.nan
+        self.last_rejected_s[start] = -np.inf
         accepted = ok | start
         self.last_update_s[accepted] = time_s
         self.last_meas[accepted] = z[accepted]
@@ -137,5 +143,5 @@ class CueFilter:
     def swap(self, a: int, b: int) -> None:
         """Exchange the whole state of tracks ``a`` and ``b`` (an identity fix, e.g. left/right)."""
         for arr in (self.pos, self.vel, self.cov, self.alive, self.last_update_s, self.last_meas,
-                    self.last_rejected, self.rejected_run):
+                    self.last_rejected, self.rejected_run, self.last_rejected_s):
             arr[[a, b]] = arr[[b, a]]

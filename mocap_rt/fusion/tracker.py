@@ -53,8 +53,8 @@ from mocap_rt.fusion.filter import CueFilter, FilterConfig
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
                                       crossed_legs_cm2, decide, fill_missing, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
-from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, frontal_pair, predict_views,
-                                   reject_duplicates, triangulate_cues)
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, frontal_pair, head_on_trunk,
+                                   predict_views, reject_duplicates, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
@@ -187,6 +187,9 @@ class BodyTracker:
         thr[C_TORSO] = self.config.torso_max_reproj_px
         X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, thr,
                                       _CONSENSUS_CUES if self.config.consensus_views else _NO_CUES)
+        if not self.config.consensus_views:
+            X, used = head_on_trunk(self._tri, self._proj, uv, w, thr, X, used,
+                                    self.lengths.trunk_m / 2 + self.lengths.neck_head_m)
         if self.config.views == "pair" and self._pair is not None:
             a, b = self._pair
             wp = np.zeros_like(w)

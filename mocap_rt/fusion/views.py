@@ -27,7 +27,7 @@ import numpy as np
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.geometry.lens import dist8, distort
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
-from mocap_rt.names import C_HEAD, LIMB_CUES, LR_PAIRS
+from mocap_rt.names import C_HEAD, C_TORSO, LIMB_CUES, LR_PAIRS
 
 # Physical cue radii (metres) for the predicted blob size and the Z-buffer discs,
 # in CUE_NAMES order: head, hands, feet (shoe), torso.
@@ -152,6 +152,33 @@ def triangulate_cues(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, w
         w = np.where(used, w, 0.0)
         X = tri(uv, w)
     return X, used, _residuals(proj, X, uv, used)
+
+
+# a triangulated head farther than this fraction off the body's head - torso distance is not on
+# the trunk (the hands clasped above the head: 0.75-0.8 m from the torso for 0.4-0.45 m)
+HEAD_TORSO_TOLERANCE = 0.35
+
+
+def head_on_trunk(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, weights: np.ndarray,
+                  max_reproj_px: float | np.ndarray, X: np.ndarray, used: np.ndarray, head_torso_m: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``triangulate_cues``' result (X (N, 3), used (C, N)) with a head that is off the top of
+    the trunk (its distance to the torso more than ``HEAD_TORSO_TOLERANCE`` off
+    ``head_torso_m``, the body's half trunk + neck-head) replaced by the head of the largest
+    consensus set of views (``_consensus_views``), if that one is on the trunk. Some views
+    took a hand for the head, and least squares followed them and dropped the right views."""
+    def on_trunk(head: np.ndarray) -> bool:
+        d = float(np.linalg.norm(head - X[C_TORSO]))
+        return not np.isfinite(d) or abs(d - head_torso_m) <= HEAD_TORSO_TOLERANCE * head_torso_m
+
+    if on_trunk(X[C_HEAD]):
+        return X, used
+    Xc, used_c, _ = triangulate_cues(tri, proj, uv, weights, max_reproj_px, np.arange(X.shape[0]) == C_HEAD)
+    if not on_trunk(Xc[C_HEAD]) or not np.isfinite(Xc[C_HEAD]).all():
+        return X, used
+    X, used = X.copy(), used.copy()
+    X[C_HEAD], used[:, C_HEAD] = Xc[C_HEAD], used_c[:, C_HEAD]
+    return X, used
 
 
 # smallest consensus set of views that replaces the plain least-squares set
