@@ -34,7 +34,8 @@ MAX_FREE_RUN_WAIT_S = 0.25    # free-running: re-trigger if no pose came back by
 @dataclass(frozen=True)
 class SyncSettings(NodeSettings):
     """fps : trigger rate, 0 = free-run (None: the rig's); frames : stop after this many
-    triggers (None: never); start_frame : the first frame id; start_delay : seconds before the
+    frame slots, triggered or skipped (None: never; the ids are start_frame .. start_frame +
+    frames - 1 whatever the load); start_frame : the first frame id; start_delay : seconds before the
     first trigger; expect_peers : wait until this many peers are connected first."""
 
     node: str = "sync"
@@ -90,7 +91,8 @@ def wait_for_peers(session, n: int, rt: NodeRuntime) -> int:
 
 def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame: int,
              rt: NodeRuntime) -> int:
-    """Publish triggers until ``n_frames`` were sent or ``rt.stop`` is set; returns frames sent."""
+    """Publish triggers for the frame slots ``0 .. n_frames - 1`` (a slot skipped because the
+    process was late counts as one of them) or until ``rt.stop`` is set; returns frames sent."""
     pub = session.declare_publisher(keys.trigger, express=True)
     sent = 0
     gcs = IdleGC()
@@ -99,7 +101,7 @@ def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame:
         sched = Schedule(time.monotonic_ns(), round(1e9 / fps))
         k = 0
         rt.publish_status("running", force=True)
-        while not rt.stop.is_set() and (n_frames is None or sent < n_frames):
+        while not rt.stop.is_set() and (n_frames is None or k < n_frames):
             due = sched.due(k)
             sleep_until(due, rt.stop)
             if rt.stop.is_set():
@@ -112,6 +114,8 @@ def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame:
             rt.extra["late_ms_last"] = (now - due) / 1e6
             nxt = k + 1
             slot = sched.slot(time.monotonic_ns())
+            if n_frames is not None:
+                slot = min(slot, n_frames)
             if slot > nxt:             # fell behind by more than a period: skip those slots
                 rt.drops += slot - nxt
                 log.warning("sync: %d trigger slot(s) skipped (process was late)", slot - nxt)
@@ -151,7 +155,7 @@ def run_sync(session, keys: Keys, fps: float, n_frames: int | None, start_frame:
 
 def _flags(p) -> None:
     p.add_argument("--fps", type=float, help="trigger rate; 0 = free-run (default: rig metadata fps or 30)")
-    p.add_argument("--frames", type=int, help="stop after this many triggers")
+    p.add_argument("--frames", type=int, help="stop after this many frame slots (triggered or skipped)")
     p.add_argument("--start-frame", type=int)
     p.add_argument("--start-delay", type=float, help="seconds to wait before the first trigger")
     p.add_argument("--expect-peers", type=int,

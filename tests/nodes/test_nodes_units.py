@@ -74,7 +74,7 @@ def test_run_sync_never_triggers_early_and_keeps_ids_tied_to_time():
     t_before = time.monotonic_ns()          # the schedule's t0 is not earlier than this
     sent = run_sync(sess, keys, 200.0, 40, 7, rt)
     puts = sess.puts[keys.trigger]
-    assert sent == len(puts) == 40
+    assert sent == len(puts) and sent + rt.drops == 40         # 40 slots, triggered or skipped
     trig = [Trigger.from_msgpack(p) for _, p in puts]
     frames = [t.frame for t in trig]
     assert frames[0] == 7 and all(b > a for a, b in zip(frames, frames[1:]))
@@ -84,6 +84,33 @@ def test_run_sync_never_triggers_early_and_keeps_ids_tied_to_time():
     assert all(t.t_mono_ns >= t_before + (t.frame - 7) * period for t in trig)
     # skipped slots (a late process) are counted, so ids + drops cover every slot
     assert frames[-1] - 7 + 1 == sent + rt.drops
+
+
+class StallingPublisher(FakePublisher):
+    """A put that stalls the sync process for 2.5 periods every 10th trigger."""
+
+    def __init__(self, sink, stall_s):
+        super().__init__(sink)
+        self.stall_s = stall_s
+
+    def put(self, payload):
+        super().put(payload)
+        if len(self.sink) % 10 == 0:
+            time.sleep(self.stall_s)
+
+
+def test_run_sync_frames_bound_the_slots_when_the_process_falls_behind():
+    """``--frames N``: the ids stay within start .. start + N - 1 even when slots are skipped
+    (a replay of N frames is one pass, never a wrap to frame 0), and triggers + skipped = N."""
+    sess, keys = FakeSession(), Keys("r")
+    fps, n, start = 200.0, 40, 100
+    sess.declare_publisher = lambda key, **kw: StallingPublisher(sess.puts.setdefault(key, []), 2.5 / fps)
+    rt = NodeRuntime(sess, keys, "sync", "sync")
+    sent = run_sync(sess, keys, fps, n, start, rt)
+    frames = [Trigger.from_msgpack(p).frame for _, p in sess.puts[keys.trigger]]
+    assert rt.drops >= 3, rt.drops                   # every stall skipped at least one slot
+    assert sent == len(frames) and sent + rt.drops == n
+    assert frames == sorted(set(frames)) and set(frames) <= set(range(start, start + n)), frames
 
 
 # ------------------------------------------------------------------ fusion gathering
