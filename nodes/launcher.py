@@ -6,8 +6,9 @@
 launcher's own Zenoh session sees it (``nodes/monitor.py``) and the report
 (``nodes/run_report.py``: status line, statistics).
 
-Start order: recorder and viewer (so they miss nothing), fusion, one camera worker per camera;
-when all report ready, the hot spare and the sync node. Stopping (Ctrl-C, ``--duration``, end of
+Start order: the fork server (``nodes/forkserver.py``: imports the nodes and loads the kernels
+once, then forks every node warm), recorder and viewer (so they miss nothing), fusion, one camera
+worker per camera; when all report ready, the hot spare and the sync node. Stopping (Ctrl-C, ``--duration``, end of
 a replay) stops the sync first, lets the last poses arrive, then stops the others.
 """
 
@@ -91,6 +92,7 @@ class Launcher:
         rec = Path(value) if kind in ("replay", "fake") else None
         if not ensure_kernels_warm(self.log_path("warmup"), self.procs.env(), rec, lambda: self.stopping):
             return
+        self.procs.start_forkserver()          # preloads while the monitor session opens
         self.session = zenoh.open(make_config([f"tcp/127.0.0.1:{self.monitor_port}"], []))
         self.monitor = ServiceMonitor(self.session, self.keys)
         for n in self.nodes.values():
@@ -198,6 +200,7 @@ class Launcher:
                 renice(n.proc.pid, self.cfg.nice)
         self.procs.terminate([n for n, p in self.nodes.items() if p.role in ("recorder", "viewer", "streamer")])
         self.hot_spare.stop()
+        self.procs.close_forkserver()
         if self.session is not None:
             self.monitor.close()
             self.session.close()

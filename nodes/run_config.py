@@ -53,7 +53,7 @@ class NodeProc:
     role: str
     argv: list[str]
     port: int
-    proc: subprocess.Popen | None = None
+    proc: subprocess.Popen | None = None   # or a nodes.forkserver.ForkedProc (the same methods)
     restarts: int = 0
     cpu_done_s: float = 0.0            # CPU of earlier (dead) instances
     cpu_last_s: float = 0.0            # CPU of the current instance, last seen

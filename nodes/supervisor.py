@@ -1,7 +1,9 @@
 """The node processes of a run: start them, restart those that die, stop them, sample their CPU.
 
-A node that dies is restarted (``RESTART_LIMIT`` times); a dead camera worker is handed to the
-hot spare (``nodes/spare.py``) when there is one. Stopping sends SIGTERM, then SIGKILL after
+Nodes are forked by the fork server (``nodes/forkserver.py``: one process that imported the
+node modules and loaded the kernels once) once ``start_forkserver`` ran, else started as their
+own processes. A node that dies is restarted (``RESTART_LIMIT`` times); a dead camera worker is
+handed to the hot spare (``nodes/spare.py``) when there is one. Stopping sends SIGTERM, then SIGKILL after
 ``STOP_TIMEOUT_S``, and kills whatever the node started itself (its process group).
 """
 
@@ -13,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from nodes.forkserver import ForkServer
 from nodes.procs import _child_setup, kill_group, stop_all
 from nodes.run_config import NodeProc
 
@@ -43,6 +46,7 @@ class Supervisor:
         self.restart = restart
         self.stopping = False
         self.spare = None                  # nodes.spare.HotSpare
+        self.forkserver: ForkServer | None = None
 
     # ------------------------------------------------------------ starting
     def env(self) -> dict:
@@ -60,8 +64,27 @@ class Supervisor:
             return BACKGROUND_NICE
         return 0
 
-    def popen(self, argv: list[str], role: str, log_name: str, stdin=subprocess.DEVNULL) -> subprocess.Popen:
-        """``python argv...`` in its own session, its output appended to ``log_name``'s log."""
+    def start_forkserver(self) -> None:
+        """Start the fork server (it preloads while the caller goes on; ``popen`` waits for it)."""
+        self.forkserver = ForkServer(self.env(), self.log_path("forkserver"))
+        self.forkserver.start()
+
+    def close_forkserver(self) -> None:
+        if self.forkserver is not None:
+            self.forkserver.close()
+            log.debug("fork server closed (preload took %s s)", self.forkserver.preload_s)
+            self.forkserver = None
+
+    def popen(self, argv: list[str], role: str, log_name: str, stdin=subprocess.DEVNULL):
+        """``python argv...`` in its own session, its output appended to ``log_name``'s log:
+        forked by the fork server when there is one (a ``ForkedProc``), else a ``Popen``."""
+        if self.forkserver is not None:
+            try:
+                return self.forkserver.spawn(argv, self.log_path(log_name), self.nice_of(role),
+                                             stdin_pipe=stdin == subprocess.PIPE)
+            except RuntimeError as exc:       # the nodes start as their own processes instead
+                log.warning("%s; starting the nodes as processes from now on", exc)
+                self.close_forkserver()
         logf = open(self.log_path(log_name), "ab")
         try:
             return subprocess.Popen([sys.executable] + argv, stdout=logf, stderr=subprocess.STDOUT,

@@ -12,7 +12,7 @@ import tomllib
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-SERVICE_ONLY = ("zenoh", "msgpack", "rerun", "psutil")
+SERVICE_ONLY = ("zenoh", "msgpack", "rerun", "psutil", "setproctitle")
 
 
 def run_without_service(code: str, hide=SERVICE_ONLY) -> subprocess.CompletedProcess:

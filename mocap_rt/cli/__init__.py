@@ -28,7 +28,8 @@ SUBCOMMANDS = (
 SERVICE_CLI = "nodes.cli"
 SERVICE_SUBCOMMANDS = ("run", "node")
 # what the service imports beyond the library (pyproject.toml, extra "service")
-SERVICE_MODULES = {"zenoh": "eclipse-zenoh", "msgpack": "msgpack", "rerun": "rerun-sdk", "psutil": "psutil"}
+SERVICE_MODULES = {"zenoh": "eclipse-zenoh", "msgpack": "msgpack", "rerun": "rerun-sdk", "psutil": "psutil",
+                   "setproctitle": "setproctitle"}
 SERVICE_INSTALL = "pip install 'mocap-rt[service]'"
 
 
