@@ -29,9 +29,9 @@ REPLAY_SPEED = 0.5          # 15 fps: a 67-ms period leaves a loaded or 3x slowe
                             # every camera of every frame (the rate is the benches' business)
 MAX_MEDIAN_CUE_ERROR_M = 0.10      # triangulated cues of the service vs the studio's truth
 CALIBRATION_POSES = 60             # fusion estimates the subject's bones from 2 s of poses (30 fps)
-MIN_POSE_FRACTION = 0.75           # of the triggered frames, from a cold cache: nodes that compile
-                                   # at start left 5 %; 98-100 % on an idle machine is the demo's
-                                   # figure (bench), a busy CI box loses a few frames
+MIN_POSE_FRACTION = 0.98           # of the triggered frames, from a cold cache (issue 11): nodes
+                                   # that compiled at start left 5 %; built once before they start
+                                   # and forked warm, they lose none on an idle machine
 
 
 @dataclass(frozen=True)
