@@ -9,7 +9,7 @@ UV      := $(BIN)/uv pip install --python $(BIN)/python --quiet
 DATA    ?= ../shared/data
 DEMO_DIR ?= out/demo
 
-.PHONY: setup kernels system-deps gst-bindings demo test test-fast bench clean
+.PHONY: setup kernels system-deps gst-bindings demo test test-gst test-fast bench clean
 
 # the venv, then every numba kernel compiled once, in one process, into the cache that
 # every node, test and demo loads (mocap_rt/warmup.py: a no-op while the kernel sources
@@ -51,10 +51,14 @@ demo: $(STAMP) kernels
 # one worker as one unit, the library tests to the other at a lower priority (tests/conftest.py:
 # two service clusters at once on 2 cores lose frames)
 TEST_JOBS ?= 2
-test: system-deps $(STAMP)
-	$(MAKE) -j2 gst-bindings kernels      # PyGObject's build and the kernel warm-up side by side
+test:
+	$(MAKE) -j2 test-gst kernels          # apt and the venv, then PyGObject's build and the kernel warm-up, side by side
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q --durations=15 \
 	  $(if $(filter-out 1,$(TEST_JOBS)),-n $(TEST_JOBS) --dist loadscope)
+
+# the Debian packages (apt) and the venv (uv) side by side, then PyGObject (needs both)
+test-gst: system-deps $(STAMP)
+	$(MAKE) gst-bindings
 
 test-fast: setup
 	MOCAP_RT_DATA=$(DATA) $(BIN)/python -m pytest -q -m "not slow"
