@@ -49,8 +49,6 @@ from setproctitle import setproctitle
 
 from nodes.procs import die_with_parent, set_autogroup_nice
 
-log = logging.getLogger(__name__)
-
 PRELOAD = ("nodes.camera_worker", "nodes.fusion_node", "nodes.sync", "nodes.recorder", "nodes.streamer")
 MAX_MESSAGE = 1 << 16
 READY_TIMEOUT_S = 120.0          # imports and kernel loads on a loaded 2-core machine (~3 s idle)
@@ -150,7 +148,6 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--fd", type=int, required=True, help="the launcher's end of the socket pair")
     args = p.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s fork server: %(message)s")
     sock = socket.socket(fileno=args.fd)
     try:
         serve(sock)
@@ -160,6 +157,16 @@ def main(argv: list[str] | None = None) -> int:
 
 
 # ---------------------------------------------------------------- the launcher's side
+def _exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass
+    return True
+
+
 class ForkedProc:
     """A node forked by the fork server, with the part of ``subprocess.Popen`` the supervisor
     uses (``pid``, ``stdin``, ``returncode``, ``poll``, ``wait``, ``send_signal``, ``terminate``,
@@ -172,20 +179,23 @@ class ForkedProc:
     def poll(self) -> int | None:
         if self.returncode is None:
             self.server.drain(0.0)
-            self.returncode = self.server.exits.get(self.pid)
+            code = self.server.exits.get(self.pid)
+            if code is None and not self.server.alive() and not _exists(self.pid):
+                code = -signal.SIGTERM     # it ended after the server (PR_SET_PDEATHSIG): its own code is lost
+            self.returncode = code
         return self.returncode
 
     def wait(self, timeout: float | None = None) -> int:
         t_end = None if timeout is None else time.monotonic() + timeout
         while self.poll() is None:
-            if not self.server.alive():
-                # the server died: its children got SIGTERM (PR_SET_PDEATHSIG)
-                self.returncode = -signal.SIGTERM
-                break
             left = None if t_end is None else t_end - time.monotonic()
             if left is not None and left <= 0:
                 raise subprocess.TimeoutExpired(f"pid {self.pid}", timeout)
-            self.server.drain(REAP_PERIOD_S if left is None else min(REAP_PERIOD_S, left))
+            step = REAP_PERIOD_S if left is None else min(REAP_PERIOD_S, left)
+            if self.server.alive():
+                self.server.drain(step)
+            else:
+                time.sleep(step)
         return self.returncode
 
     def send_signal(self, sig: int) -> None:
