@@ -7,9 +7,10 @@ launcher's own Zenoh session sees it (``nodes/monitor.py``) and the report
 (``nodes/run_report.py``: status line, statistics).
 
 Start order: the fork server (``nodes/forkserver.py``: imports the nodes and loads the kernels
-once, then forks every node warm), recorder and viewer (so they miss nothing), fusion, one camera
-worker per camera; when all report ready, the hot spare and the sync node. Stopping (Ctrl-C, ``--duration``, end of
-a replay) stops the sync first, lets the last poses arrive, then stops the others.
+once, then forks every node warm), recorder and viewer (so they miss nothing), fusion, one
+camera worker per camera; when all report ready, the hot spare and the sync node. Stopping
+(Ctrl-C, ``--duration``, end of a replay) stops the sync first, lets the last poses arrive,
+then stops the others.
 """
 
 from __future__ import annotations

@@ -3,8 +3,8 @@
 Nodes are forked by the fork server (``nodes/forkserver.py``: one process that imported the
 node modules and loaded the kernels once) once ``start_forkserver`` ran, else started as their
 own processes. A node that dies is restarted (``RESTART_LIMIT`` times); a dead camera worker is
-handed to the hot spare (``nodes/spare.py``) when there is one. Stopping sends SIGTERM, then SIGKILL after
-``STOP_TIMEOUT_S``, and kills whatever the node started itself (its process group).
+handed to the hot spare (``nodes/spare.py``) when there is one. Stopping sends SIGTERM, then
+SIGKILL after ``STOP_TIMEOUT_S``, and kills whatever the node started itself (its process group).
 """
 
 from __future__ import annotations

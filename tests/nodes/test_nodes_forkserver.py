@@ -80,3 +80,18 @@ def test_the_children_end_with_the_server(server, tmp_path, how):
     assert not alive, [p.pid for p in alive]
     assert server.proc.wait(30) is not None
     assert all(k.wait(5) is not None for k in kids)
+
+
+def test_the_supervisor_starts_processes_when_the_fork_server_is_gone(tmp_path, monkeypatch, warm_kernels):
+    from nodes.run_config import NodeProc
+    from nodes.supervisor import Supervisor
+
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(HERE), str(REPO)]))
+    node = NodeProc("probe", "camera", ["-m", "fork_probe", "echo", "4"], 0)
+    sup = Supervisor({"probe": node}, tmp_path)
+    sup.start_forkserver()
+    sup.forkserver.proc.kill()              # it dies before it was ready
+    sup.spawn(node)
+    assert sup.forkserver is None and isinstance(node.proc, subprocess.Popen)
+    assert node.proc.wait(120) == 4
+    assert _echo_line(tmp_path / "probe.log")["held"] == 0     # a process of its own: nothing preloaded
