@@ -9,9 +9,7 @@ from pathlib import Path
 
 import psutil
 import pytest
-from service_helpers import small_recording, wait_for
-
-from nodes.launcher import free_port
+from service_helpers import ports_apart_from_the_launcher, small_recording, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -59,7 +57,7 @@ def _cmd(p: psutil.Process) -> str:
 
 
 def test_every_child_ends_on_ctrl_c_and_after_a_crash(walk, tmp_path):
-    web, grpc = free_port(), free_port()
+    web, grpc = ports_apart_from_the_launcher(2)
     exe = str(Path(sys.executable).with_name("mocap-rt"))
     logf = open(tmp_path / "run.log", "wb")
     run = subprocess.Popen([exe, "run", "--source", f"replay:{walk}", "--duration", "600", "--quiet",
@@ -79,7 +77,7 @@ def test_every_child_ends_on_ctrl_c_and_after_a_crash(walk, tmp_path):
         # a node crash: kill -9 the viewer; its web server must not outlive it
         viewer = next(p for p in seen.values() if "nodes.viewer" in _cmd(p))
         web_server = [p for p in viewer.children(recursive=True) if "--serve-web" in _cmd(p)]
-        assert web_server
+        assert web_server, {p.pid: (_cmd(p)[:80], sorted(_listening_ports([p]))) for p in seen.values()}
         viewer.kill()
         assert wait_for(lambda: not _alive(web_server), WAIT_S), "the crashed viewer's web server survived it"
         # the launcher restarts the viewer, with a new web server (listening: its ports must be
