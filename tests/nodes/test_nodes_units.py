@@ -82,8 +82,10 @@ def test_run_sync_never_triggers_early_and_keeps_ids_tied_to_time():
     assert all(t.period_ns == period for t in trig)
     # frame k is never sent before its slot t0 + (k - 7) * period (absolute schedule)
     assert all(t.t_mono_ns >= t_before + (t.frame - 7) * period for t in trig)
-    # skipped slots (a late process) are counted, so ids + drops cover every slot
-    assert frames[-1] - 7 + 1 == sent + rt.drops
+    # skipped slots (a late process) are counted: the gaps between the ids are skipped slots, and
+    # so may be the last slots (``frames`` bounds the slots, triggered or skipped)
+    assert frames[-1] <= 7 + 40 - 1
+    assert frames[-1] - 7 + 1 - sent <= rt.drops
 
 
 class StallingPublisher(FakePublisher):
