@@ -47,7 +47,7 @@ from pathlib import Path
 
 from setproctitle import setproctitle
 
-from nodes.procs import die_with_parent, set_autogroup_nice
+from nodes.procs import _child_setup, die_with_parent
 
 PRELOAD = ("nodes.camera_worker", "nodes.fusion_node", "nodes.sync", "nodes.recorder", "nodes.streamer")
 MAX_MESSAGE = 1 << 16
@@ -61,14 +61,7 @@ def _child(req: dict, stdin_fd: int, log_fd: int, sock: socket.socket):
     returns its exit code as ``SystemExit`` takes it."""
     sock.close()
     os.setsid()
-    die_with_parent()
-    nice = int(req.get("nice", 0))
-    if nice:
-        try:
-            os.nice(nice)
-        except OSError:
-            pass
-        set_autogroup_nice(nice)
+    _child_setup(int(req.get("nice", 0)))()      # what a Popen'd node gets: PDEATHSIG, niceness
     os.dup2(stdin_fd, 0)
     os.dup2(log_fd, 1)
     os.dup2(log_fd, 2)
