@@ -3,8 +3,9 @@
 On each trigger: grab (replay: the recording frame of that id; live: the grabber's newest
 frame), perceive with ``CameraPerceiver`` using fusion's prediction for that frame when it
 arrived (labelling + occlusion, seed A.4), publish the cues. Triggers that arrive while a
-frame is still being processed are not queued: only the newest is kept, the others are
-counted as drops (a late frame is worthless to a real-time fusion).
+frame is still being processed wait in a short queue (``TriggerSlot``): a replay worker
+serves the few it fell behind by, in order; a live one keeps only the newest (its grabber
+has no older image). Triggers pushed out unread are counted as drops.
 
 Optional outputs: a JPEG preview every ``--preview-every`` frames (for the viewer) and, for
 live sources with ``--publish-frames``, the raw images and backgrounds (for the recorder).
@@ -20,6 +21,7 @@ worker. Replacing a dead worker so costs its per-camera set-up, not a process st
 
 from __future__ import annotations
 
+import collections
 import json
 import logging
 import os
@@ -39,6 +41,7 @@ log = logging.getLogger(__name__)
 PREVIEW_JPEG_QUALITY = 70
 TRIGGER_WAIT_S = 0.2           # wake up this often to send status while idle
 PREDICTIONS_KEPT = 8           # predictions for the coming frames kept by frame id
+CATCH_UP_DEPTH = 3             # triggers a replay worker keeps (TriggerSlot)
 DEFER_FRACTION = 0.5           # deferred work waits for fusion's answer at most this part of a period
 
 
@@ -63,30 +66,38 @@ class WorkerSettings(NodeSettings):
 
 
 class TriggerSlot:
-    """The newest trigger, filled by the Zenoh callback; older unread ones count as drops."""
+    """The newest ``depth`` triggers, filled by the Zenoh callback and taken oldest first; a
+    trigger pushed out unread counts as a drop (``overwritten``).
 
-    def __init__(self) -> None:
+    Depth 1 (a live camera: its grabber holds only the newest image, so an older trigger
+    cannot be served) keeps the newest only. A replay worker keeps ``CATCH_UP_DEPTH``: after
+    a stall that hit the whole machine (tens of ms, every worker at once) it serves the
+    frames it missed, in order, instead of losing them.
+    """
+
+    def __init__(self, depth: int = 1) -> None:
         self._cond = threading.Condition()
-        self._trigger: Trigger | None = None
-        self._recv_ns = 0
+        self._queue: collections.deque[tuple[Trigger, int]] = collections.deque()
+        self.depth = depth
         self.taken_recv_ns = 0      # when the last taken trigger arrived (monotonic ns)
         self.overwritten = 0
 
     def put(self, trig: Trigger, recv_ns: int = 0) -> None:
         with self._cond:
-            if self._trigger is not None:
+            if len(self._queue) >= self.depth:
+                self._queue.popleft()
                 self.overwritten += 1
-            self._trigger, self._recv_ns = trig, recv_ns
+            self._queue.append((trig, recv_ns))
             self._cond.notify()
 
     def take(self, timeout_s: float) -> Trigger | None:
-        """The newest trigger, waiting up to ``timeout_s``; None on timeout or ``poke``."""
+        """The oldest trigger kept, waiting up to ``timeout_s``; None on timeout or ``poke``."""
         with self._cond:
-            if self._trigger is None:
+            if not self._queue:
                 self._cond.wait(timeout_s)
-            trig, self._trigger = self._trigger, None
-            if trig is not None:
-                self.taken_recv_ns = self._recv_ns
+            if not self._queue:
+                return None
+            trig, self.taken_recv_ns = self._queue.popleft()
             return trig
 
     def poke(self) -> None:
@@ -171,7 +182,7 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
     import cv2
 
     name = camera.name
-    slot, preds = TriggerSlot(), PredictionBox()
+    slot, preds = TriggerSlot(1 if source.live else CATCH_UP_DEPTH), PredictionBox()
     window = FrameWindow(keys.rig, rt.node)     # triggers that fit, predictions near the newest
 
     def on_trigger(sample) -> None:

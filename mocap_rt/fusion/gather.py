@@ -2,7 +2,9 @@
 
 ``FrameGatherer`` collects, per triggered frame, the cues each camera sends and decides
 when the frame is ready for fusion: every *live* camera answered, or the deadline
-``t_trigger + deadline_frac * period`` passed. A camera is live when its cues arrived
+``deadline_frac * period`` passed, counted from the trigger or from the frame's first
+answer, whichever is later (a frame served late, as when the cameras catch up after a
+stall, still waits for all of them). A camera is live when its cues arrived
 within ``liveness_s``. Pure bookkeeping on monotonic ns stamps (no transport), so the
 fusion node (``nodes/fusion_node.py``) stays a thin loop and this is unit-tested alone.
 Triggers need ``frame``, ``t_mono_ns`` and ``period_ns``; cue messages ``camera``,
@@ -53,11 +55,13 @@ class FrameGatherer:
         self.frames_dropped = 0
         self._triggered = False
 
-    def _deadline(self, t_trigger_ns: int) -> int:
+    def _wait_ns(self) -> int:
         if self.period_ns > 0:
-            wait_ns = int(self.deadline_frac * self.period_ns)
-        else:
-            wait_ns = int(FREE_RUN_DEADLINE_S * 1e9)
+            return int(self.deadline_frac * self.period_ns)
+        return int(FREE_RUN_DEADLINE_S * 1e9)
+
+    def _deadline(self, t_trigger_ns: int) -> int:
+        wait_ns = self._wait_ns()
         if self.last_done < 0:            # nothing fused yet: the first frame
             wait_ns = max(wait_ns, int(FIRST_FRAME_GRACE_S * 1e9))
         return t_trigger_ns + wait_ns
@@ -92,7 +96,11 @@ class FrameGatherer:
             self.late_cues += 1
             return
         pf.cues[msg.camera] = msg.cues
-        pf.t_first_ns = pf.t_first_ns or now_ns
+        if not pf.t_first_ns:
+            # the others' answers are due within the usual wait of the first one: this
+            # matters for a frame served late (the cameras catching up after a stall)
+            pf.t_first_ns = now_ns
+            pf.deadline_ns = max(pf.deadline_ns, now_ns + self._wait_ns())
         pf.t_last_ns = max(pf.t_last_ns, now_ns)
 
     def assume_all_live(self, now_ns: int) -> None:

@@ -134,9 +134,10 @@ def test_gatherer_waits_for_live_cameras_then_deadline():
     g.on_cues(_cues("a", 1, 1040 * MS), 1041 * MS)
     g.on_cues(_cues("b", 1, 1040 * MS), 1041 * MS)
     assert g.ready(1042 * MS) == []
-    # ... until the deadline t_trigger + 0.5 * period
-    assert g.next_deadline_ns() == 1060 * MS
-    ready = g.ready(1060 * MS)
+    # ... until the deadline: 0.5 * period after the first answer (later than the trigger's)
+    assert g.next_deadline_ns() == 1061 * MS
+    assert g.ready(1060 * MS) == []
+    ready = g.ready(1061 * MS)
     assert [pf.frame for pf in ready] == [1] and set(ready[0].cues) == {"a", "b"}
     # c's late answer is counted, not used
     g.on_cues(_cues("c", 1, 1040 * MS), 1061 * MS)
@@ -240,6 +241,11 @@ def test_trigger_slot_keeps_newest_and_counts_overwritten():
     assert slot.take(0.01).frame == 4
     assert slot.overwritten == 4
     assert slot.take(0.01) is None
+    deep = TriggerSlot(depth=3)                  # a replay worker: catches up, oldest first
+    for f in range(5):
+        deep.put(Trigger("r", f, f, f, 1), recv_ns=100 + f)
+    assert [(deep.take(0.01).frame, deep.taken_recv_ns) for _ in range(3)] == [(2, 102), (3, 103), (4, 104)]
+    assert deep.overwritten == 2 and deep.take(0.01) is None
     th = threading.Timer(0.05, lambda: slot.put(Trigger("r", 9, 9, 9, 1)))
     th.start()
     assert slot.take(2.0).frame == 9
@@ -384,7 +390,34 @@ def test_gatherer_fuses_an_older_partial_frame_before_a_newer_complete_one():
     g.on_trigger(Trigger("r", 7, 80 * MS, 0, 40 * MS), now_ns=80 * MS)
     assert g.ready(200 * MS) == [] and g.next_deadline_ns() is None
     g.on_cues(_cues("b", 7, 80 * MS), 201 * MS)
-    assert [pf.frame for pf in g.ready(201 * MS)] == [7]
+    # ... and then waits for the others the usual 32 ms, counted from that answer
+    assert g.ready(201 * MS) == [] and g.next_deadline_ns() == 233 * MS
+    assert [pf.frame for pf in g.ready(233 * MS)] == [7]
+
+
+def test_gatherer_waits_for_every_camera_of_a_frame_served_after_a_stall():
+    """Every camera stalled and then catches up (the workers keep a few triggers): the
+    frames they missed arrive late, in order, and each is fused whole, none dropped."""
+    cams = list("abcdef")
+    g = FrameGatherer(cams, deadline_frac=0.8, liveness_s=0.25)
+    period = 33 * MS
+    g.on_trigger(Trigger("r", 0, 0, 0, period), now_ns=0)
+    for c in cams:
+        g.on_cues(_cues(c, 0, 0), 5 * MS)
+    assert [pf.frame for pf in g.ready(5 * MS)] == [0]
+    # a 70 ms stall: triggers 1 and 2 arrive, nobody answers until 75 ms
+    g.on_trigger(Trigger("r", 1, 33 * MS, 0, period), now_ns=33 * MS)
+    g.on_trigger(Trigger("r", 2, 66 * MS, 0, period), now_ns=66 * MS)
+    fused = []
+    t = 75 * MS
+    for frame in (1, 2):                        # the cameras take turns on 2 cores
+        for c in cams:
+            g.on_cues(_cues(c, frame, frame * period), t)
+            fused += g.ready(t)
+            t += 2 * MS
+    assert [pf.frame for pf in fused] == [1, 2]
+    assert all(set(pf.cues) == set(cams) for pf in fused)
+    assert g.frames_dropped == 0 and g.late_cues == 0
 
 
 def test_gatherer_first_frame_has_a_grace_period():
