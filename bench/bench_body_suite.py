@@ -4,6 +4,7 @@
     python -m bench body_suite --quick              # 4 clips: backwards walk, jumping jacks, dance, hands at the face
     python -m bench body_suite --held-out           # procedural seeds 1000+ and variants never tuned on
     python -m bench body_suite --clips proc_clap_s0,walk_backwards_131_01 --json after.json --compare before.json
+    python -m bench body_suite --quick --truth-bones   # the truth's bone lengths: the estimate's share of the error
 
 Each clip's studio recording (6-camera ring, 640x480, 30 fps; bench/out/suite, rendered once)
 goes through ``mocap_rt.fusion.offline.process_recording`` (what ``mocap-rt process`` runs:
@@ -45,19 +46,24 @@ COLS = (("MPJPE", "mpjpe_mm", 6, 0), ("PA", "pa_mpjpe_mm", 5, 0), ("mirr%", "mir
 LEGS = [J[n] for s in ("l", "r") for n in (f"knee_{s}", f"ankle_{s}", f"foot_{s}")]
 
 
-def run_clip(rec_dir, lock: bool, legs: bool = True) -> dict:
-    """Process one recording and score it (``legs=False``: the desktop rig, legs not scored)."""
+def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False) -> dict:
+    """Process one recording and score it (``legs=False``: the desktop rig, legs not scored;
+    ``truth_bones``: the truth's bone lengths instead of the estimate, to tell the estimate's
+    share of the error from the rest)."""
+    from mocap_rt.body.estimate import bone_lengths_from_joints
     from mocap_rt.fusion.evaluate import suite_metrics
     from mocap_rt.fusion.offline import process_recording
+    from mocap_rt.fusion.tracker import FusionConfig
     from mocap_rt.io.recording import Recording
 
-    with tempfile.TemporaryDirectory() as tmp, timing_lock(lock):
-        t0 = time.perf_counter()
-        out = process_recording(rec_dir, tmp, progress=False)
-        wall = time.perf_counter() - t0
     rec = Recording(rec_dir)
     truth = {k: rec.truth[k] for k in ("frames", "joints", "cues", "joint_names")}
     rec.close()
+    config = FusionConfig(bone_lengths=bone_lengths_from_joints(truth["joints"])) if truth_bones else None
+    with tempfile.TemporaryDirectory() as tmp, timing_lock(lock):
+        t0 = time.perf_counter()
+        out = process_recording(rec_dir, tmp, config, progress=False)
+        wall = time.perf_counter() - t0
     joints = np.where(out.joint_valid[..., None], out.joints, np.nan)
     cues = out.cues.copy()
     if not legs:
@@ -129,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--compare", default=None, help="a JSON from an earlier run: print before -> after")
     ap.add_argument("--no-desktop", action="store_true", help="skip the 2-camera desktop rig rows")
     ap.add_argument("--no-lock", action="store_true", help="do not take /tmp/mocap-timing.lock")
+    ap.add_argument("--truth-bones", action="store_true",
+                    help="the truth's bone lengths instead of the estimate (the estimate's share of the error)")
     args = ap.parse_args(argv)
     which = "quick" if args.quick else "held-out" if args.held_out else "all" if args.all else "default"
     clips = select(suite_clips(which), args.clips)
@@ -137,11 +145,12 @@ def main(argv: list[str] | None = None) -> int:
         ys = yardstick_ms()
     print(header(ys))
     print(f"suite '{which if not args.clips else 'selected'}': {len(clips)} clips, 6-camera ring {size[0]}x{size[1]}, "
-          f"30 fps, mocap-rt process (closed loop, estimated bones); errors mm, angles deg")
+          f"30 fps, mocap-rt process (closed loop, {'truth' if args.truth_bones else 'estimated'} bones); "
+          "errors mm, angles deg")
     results, t0 = {}, time.perf_counter()
     for c in clips:
         rec = ensure_recording(c, size)
-        results[c.name] = run_clip(rec, not args.no_lock)
+        results[c.name] = run_clip(rec, not args.no_lock, truth_bones=args.truth_bones)
         print(_row(c.name, results[c.name]), flush=True)
     print(f"\n== motion suite ({len(clips)} clips, {time.perf_counter() - t0:.0f} s) ==")
     print_tables(results, ys)
@@ -150,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
         print("\n2-camera desktop rig (upper body scored: legs and foot cues left out):")
         print(_head())
         for c in select(suite_clips("all"), "proc_clap_s0,proc_hands_cross_face_s0"):
-            desktop[c.name] = run_clip(ensure_recording(c, size, rig="desktop"), not args.no_lock, legs=False)
+            desktop[c.name] = run_clip(ensure_recording(c, size, rig="desktop"), not args.no_lock, legs=False,
+                                       truth_bones=args.truth_bones)
             print(_row(c.name, desktop[c.name]))
     if args.json:
         with open(args.json, "w") as fh:
