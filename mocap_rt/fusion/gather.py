@@ -2,9 +2,9 @@
 
 ``FrameGatherer`` collects, per triggered frame, the cues each camera sends and decides
 when the frame is ready for fusion: every *live* camera answered, or the deadline
-``deadline_frac * period`` passed, counted from the trigger or from the frame's first
-answer, whichever is later (a frame served late, as when the cameras catch up after a
-stall, still waits for all of them). A camera is live when its cues arrived
+``deadline_frac * period`` passed, counted from the trigger; for a frame served late (its
+first answer more than half that wait after the trigger, as when the cameras catch up after
+a stall), counted from its first answer, so that it still waits for all of them. A camera is live when its cues arrived
 within ``liveness_s``. Pure bookkeeping on monotonic ns stamps (no transport), so the
 fusion node (``nodes/fusion_node.py``) stays a thin loop and this is unit-tested alone.
 Triggers need ``frame``, ``t_mono_ns`` and ``period_ns``; cue messages ``camera``,
@@ -97,10 +97,12 @@ class FrameGatherer:
             return
         pf.cues[msg.camera] = msg.cues
         if not pf.t_first_ns:
-            # the others' answers are due within the usual wait of the first one: this
-            # matters for a frame served late (the cameras catching up after a stall)
             pf.t_first_ns = now_ns
-            pf.deadline_ns = max(pf.deadline_ns, now_ns + self._wait_ns())
+            wait_ns = self._wait_ns()
+            if now_ns - pf.t_trigger_mono_ns > wait_ns // 2:
+                # served late (the cameras catching up after a stall): the others' answers
+                # come in the same burst, within the usual wait of this first one
+                pf.deadline_ns = max(pf.deadline_ns, now_ns + wait_ns)
         pf.t_last_ns = max(pf.t_last_ns, now_ns)
 
     def assume_all_live(self, now_ns: int) -> None:

@@ -134,10 +134,9 @@ def test_gatherer_waits_for_live_cameras_then_deadline():
     g.on_cues(_cues("a", 1, 1040 * MS), 1041 * MS)
     g.on_cues(_cues("b", 1, 1040 * MS), 1041 * MS)
     assert g.ready(1042 * MS) == []
-    # ... until the deadline: 0.5 * period after the first answer (later than the trigger's)
-    assert g.next_deadline_ns() == 1061 * MS
-    assert g.ready(1060 * MS) == []
-    ready = g.ready(1061 * MS)
+    # ... until the deadline t_trigger + 0.5 * period (answers on time: counted from the trigger)
+    assert g.next_deadline_ns() == 1060 * MS
+    ready = g.ready(1060 * MS)
     assert [pf.frame for pf in ready] == [1] and set(ready[0].cues) == {"a", "b"}
     # c's late answer is counted, not used
     g.on_cues(_cues("c", 1, 1040 * MS), 1061 * MS)
