@@ -3,7 +3,7 @@
 On each trigger: grab (replay: the recording frame of that id; live: the grabber's newest
 frame), perceive with ``CameraPerceiver`` using fusion's prediction for that frame when it
 arrived (labelling + occlusion, seed A.4), publish the cues. Triggers that arrive while a
-frame is still being processed wait in a short queue (``TriggerSlot``): a replay worker
+frame is still being processed wait in a short queue (``TriggerQueue``): a replay worker
 serves the few it fell behind by, in order; a live one keeps only the newest (its grabber
 has no older image). Triggers pushed out unread are counted as drops.
 
@@ -41,7 +41,7 @@ log = logging.getLogger(__name__)
 PREVIEW_JPEG_QUALITY = 70
 TRIGGER_WAIT_S = 0.2           # wake up this often to send status while idle
 PREDICTIONS_KEPT = 8           # predictions for the coming frames kept by frame id
-CATCH_UP_DEPTH = 3             # triggers a replay worker keeps (TriggerSlot)
+CATCH_UP_DEPTH = 4             # triggers a replay worker keeps (TriggerQueue)
 DEFER_FRACTION = 0.5           # deferred work waits for fusion's answer at most this part of a period
 
 
@@ -65,7 +65,7 @@ class WorkerSettings(NodeSettings):
     standby: bool = False
 
 
-class TriggerSlot:
+class TriggerQueue:
     """The newest ``depth`` triggers, filled by the Zenoh callback and taken oldest first; a
     trigger pushed out unread counts as a drop (``overwritten``).
 
@@ -182,20 +182,20 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
     import cv2
 
     name = camera.name
-    slot, preds = TriggerSlot(1 if source.live else CATCH_UP_DEPTH), PredictionBox()
+    triggers, preds = TriggerQueue(1 if source.live else CATCH_UP_DEPTH), PredictionBox()
     window = FrameWindow(keys.rig, rt.node)     # triggers that fit, predictions near the newest
 
     def on_trigger(sample) -> None:
         recv_ns = time.monotonic_ns()
         trig = rt.decoder.decode(sample.payload, Trigger)
         if trig is not None and window.accept(trig):
-            slot.put(trig, recv_ns)
+            triggers.put(trig, recv_ns)
 
     def on_prediction(sample) -> None:
         msg = rt.decoder.decode(sample.payload, Prediction)
         if msg is not None and msg.prediction.camera == name and window.accept(msg):
             preds.put(msg.prediction)
-            slot.poke()
+            triggers.poke()
 
     cues_pub = session.declare_publisher(keys.cues(name), express=True)
     preview_pub = session.declare_publisher(keys.preview(name)) if preview_every > 0 else None
@@ -230,8 +230,8 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
     try:
         while not rt.stop.is_set():
             wait = TRIGGER_WAIT_S if deferred is None else max(0.0, deferred[2] - time.monotonic())
-            trig = slot.take(wait)
-            rt.drops = slot.overwritten
+            trig = triggers.take(wait)
+            rt.drops = triggers.overwritten
             rt.extra.update(window.counters())
             if deferred is not None and (trig is not None or preds.get(deferred[0] + 1) is not None
                                          or time.monotonic() >= deferred[2]):
@@ -260,7 +260,7 @@ def run_worker(session, keys: Keys, camera, source, perceiver, rt: NodeRuntime,
             work_ms = (time.perf_counter() - t0) * 1e3
             # where this frame's time went, ms after the trigger (fusion forwards the
             # slowest camera's in the pose's timings)
-            cues.timings_ms.update(w_recv=(slot.taken_recv_ns - trig.t_mono_ns) / 1e6,
+            cues.timings_ms.update(w_recv=(triggers.taken_recv_ns - trig.t_mono_ns) / 1e6,
                                    w_start=(t_start_ns - trig.t_mono_ns) / 1e6,
                                    w_pub=(time.monotonic_ns() - trig.t_mono_ns) / 1e6,
                                    w_cpu=(time.thread_time() - c0) * 1e3)

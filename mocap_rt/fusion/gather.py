@@ -3,12 +3,13 @@
 ``FrameGatherer`` collects, per triggered frame, the cues each camera sends and decides
 when the frame is ready for fusion: every *live* camera answered, or the deadline
 ``deadline_frac * period`` passed, counted from the trigger; for a frame served late (its
-first answer more than half that wait after the trigger, as when the cameras catch up after
-a stall), counted from its first answer, so that it still waits for all of them. A camera is live when its cues arrived
-within ``liveness_s``. Pure bookkeeping on monotonic ns stamps (no transport), so the
-fusion node (``nodes/fusion_node.py``) stays a thin loop and this is unit-tested alone.
-Triggers need ``frame``, ``t_mono_ns`` and ``period_ns``; cue messages ``camera``,
-``frame``, ``t_trigger_mono_ns`` and ``cues`` (the node's ``Trigger`` and ``Cues``).
+first answer more than half that wait after the trigger, as when the cameras catch up
+after a stall), counted from its first answer, so that it still waits for all of them.
+A camera is live when its cues arrived within ``liveness_s``. Pure bookkeeping on
+monotonic ns stamps (no transport), so the fusion node (``nodes/fusion_node.py``) stays a
+thin loop and this is unit-tested alone. Triggers need ``frame``, ``t_mono_ns`` and
+``period_ns``; cue messages ``camera``, ``frame``, ``t_trigger_mono_ns`` and ``cues`` (the
+node's ``Trigger`` and ``Cues``).
 """
 
 from __future__ import annotations

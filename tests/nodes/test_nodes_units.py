@@ -11,7 +11,7 @@ from mocap_rt.body.bvh_export import bvh_skeleton_of
 from mocap_rt.body.skeleton import BoneLengths, read_bone_lengths
 from mocap_rt.cues import CameraCues
 from mocap_rt.io.bvh import read_bvh
-from nodes.camera_worker import PredictionBox, TriggerSlot
+from nodes.camera_worker import PredictionBox, TriggerQueue
 from mocap_rt.fusion.gather import FrameGatherer
 from nodes.messages import Cues, Keys, Pose, Trigger
 from nodes.monitor import percentiles
@@ -233,14 +233,14 @@ def test_parse_source():
 
 
 # ------------------------------------------------------------------ worker slots
-def test_trigger_slot_keeps_newest_and_counts_overwritten():
-    slot = TriggerSlot()
+def test_trigger_queue_keeps_the_newest_and_counts_overwritten():
+    slot = TriggerQueue()
     for f in range(5):
         slot.put(Trigger("r", f, f, f, 1))
     assert slot.take(0.01).frame == 4
     assert slot.overwritten == 4
     assert slot.take(0.01) is None
-    deep = TriggerSlot(depth=3)                  # a replay worker: catches up, oldest first
+    deep = TriggerQueue(depth=3)                 # a replay worker: catches up, oldest first
     for f in range(5):
         deep.put(Trigger("r", f, f, f, 1), recv_ns=100 + f)
     assert [(deep.take(0.01).frame, deep.taken_recv_ns) for _ in range(3)] == [(2, 102), (3, 103), (4, 104)]
