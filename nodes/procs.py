@@ -36,13 +36,14 @@ _rng = random.Random()
 _handed_out: set[int] = set()   # never the same port twice: the nodes of one service bind later
 
 
-def free_port() -> int:
-    """A loopback TCP port that is free now, outside the ephemeral range (so that no outgoing
-    connection of another process can take it before our node binds it) and not handed out
-    before by this process (the ports of one service are all drawn before any node binds)."""
+def free_port(port_range: tuple[int, int] = PORT_RANGE) -> int:
+    """A loopback TCP port in ``port_range`` that is free now, outside the ephemeral range (so
+    that no outgoing connection of another process can take it before our node binds it) and
+    not handed out before by this process (the ports of one service are all drawn before any
+    node binds)."""
     lo_e, hi_e = _ephemeral_range()
     for _ in range(1000):
-        port = _rng.randrange(*PORT_RANGE)
+        port = _rng.randrange(*port_range)
         if lo_e <= port <= hi_e or port in _handed_out:
             continue
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:

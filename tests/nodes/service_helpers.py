@@ -15,21 +15,9 @@ def ports_apart_from_the_launcher(n: int) -> list[int]:
     (``nodes.procs.PORT_RANGE``). A ``mocap-rt run`` that a test starts draws its ports in its
     own process, so ``free_port()`` of the test's process could hand out one it later takes (a
     Zenoh node then listened on the port given to ``--rerun serve:WEB``)."""
-    import random
+    from nodes.procs import PORT_RANGE, free_port
 
-    from nodes.procs import PORT_RANGE
-
-    out: list[int] = []
-    while len(out) < n:
-        port = random.randrange(PORT_RANGE[0] - 10000, PORT_RANGE[0])
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-        if port not in out:
-            out.append(port)
-    return out
+    return [free_port((PORT_RANGE[0] - 10000, PORT_RANGE[0])) for _ in range(n)]
 
 
 def small_recording(base: Path, data_dir: Path, name: str = "walk_320", seconds: float = 2.5,
