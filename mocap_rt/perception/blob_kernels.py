@@ -34,7 +34,7 @@ def params_record(dtype: np.dtype, source, **override) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums):  # pragma: no cover - numba
+def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums, shape):  # pragma: no cover - numba
     """Initial labelling (A.2): each colour pixel to the predicted centre nearest in units of
     the blobs' sizes, within its gate.
 
@@ -45,11 +45,25 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums):  # pr
     the split lies where the two predicted discs touch, not halfway between the centres
     (issue 12: a merged skin region is split by the predicted blobs). Equal sizes: nearest.
     sums (K, 6) float64 is overwritten with the moments of each blob's pixels.
+    shape (K, 3) float64 (or (0, 3): none): each blob's inverse covariance (i_xx, i_xy, i_yy,
+    px^-2) as expected this frame; when every tracked blob has one (i_xx > 0) a pixel goes
+    instead to the blob of least Mahalanobis distance + log det of its covariance (the
+    Gaussian discriminant: the likeliest blob), so two elongated blobs that touch side by
+    side, e.g. two shoes, are split along their seam rather than across their length.
     """
     K = centers.shape[0]
     for k in range(K):
         for j in range(N_MOMENTS):
             sums[k, j] = 0.0
+    by_shape = shape.shape[0] == K
+    log_det = np.zeros(K)
+    if by_shape:
+        for k in range(K):
+            if math.isfinite(centers[k, 0]):
+                if not shape[k, 0] > 0.0:
+                    by_shape = False
+                else:
+                    log_det[k] = -math.log(shape[k, 0] * shape[k, 2] - shape[k, 1] * shape[k, 1])
     for y in range(y0, y1):
         for x in range(x0, x1):
             if skin[y, x] < 0.5:
@@ -60,9 +74,14 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums):  # pr
                 dx = x - centers[k, 0]
                 dy = y - centers[k, 1]
                 d = dx * dx + dy * dy
-                if d < gate2[k] and d * inv_scale2[k] < bd:
-                    bd = d * inv_scale2[k]
-                    best = k
+                if d < gate2[k]:
+                    if by_shape:
+                        m = shape[k, 0] * dx * dx + 2.0 * shape[k, 1] * dx * dy + shape[k, 2] * dy * dy + log_det[k]
+                    else:
+                        m = d * inv_scale2[k]
+                    if m < bd:
+                        bd = m
+                        best = k
             if best >= 0:
                 sums[best, 0] += 1.0
                 sums[best, 1] += x
@@ -287,7 +306,7 @@ def _polygon_centroid(contour, n_pts, mx, my):  # pragma: no cover - numba
 
 @numba.njit(cache=True, nogil=True)
 def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp, sums, xy, cov, area,
-                     contours, has_contour):  # pragma: no cover - numba
+                     contours, has_contour, shape):  # pragma: no cover - numba
     """One tracker frame in one call: labelling (``label_moments``) + Gaussian blobs +
     deformable ellipse of each visible blob. Python per-blob overhead was most of the
     blob stage's time.
@@ -323,7 +342,7 @@ def label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp
         sy0 = max(y0, int(math.floor(loy)))
         sx1 = max(sx0, min(x1, int(math.ceil(hix)) + 1))
         sy1 = max(sy0, min(y1, int(math.ceil(hiy)) + 1))
-        label_moments(skin, sx0, sy0, sx1, sy1, centers, gate2, 1.0 / (size * size), sums)
+        label_moments(skin, sx0, sy0, sx1, sy1, centers, gate2, 1.0 / (size * size), sums, shape)
     mean = np.empty(2)
     c2 = np.empty((2, 2))
     sites = np.full((K, 5), np.nan)      # mean + inverse covariance of each found blob

@@ -60,6 +60,7 @@ class BlobParams:
     facing_camera: bool = True          # cold-start convention: image-left = person's right
     snap_to_regions: bool = True        # label around the blobs' own colour regions when each has one
     acquire_lone_region: bool = True    # one region for a missing left/right pair: acquire it for one of them
+    label_by_shape: bool = False        # label by each blob's last covariance (Gaussian discriminant), not its size
 
 
 @dataclass
@@ -84,6 +85,18 @@ ACQUIRE_MAX_REGIONS = 4     # re-acquisition considers the largest this many unc
 ROLE_SIZE = {"head": 2.0, "hand_l": 1.0, "hand_r": 1.0, "foot_l": 1.0, "foot_r": 1.0}
 _NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
 _NAN_K = np.full(8, np.nan)
+_NO_SHAPE = np.zeros((0, 3))
+
+
+def inverse_shapes(cov: np.ndarray, pixel_var: float = 1.0) -> np.ndarray:
+    """(K, 3) inverse covariances (i_xx, i_xy, i_yy) of blob covariances ``cov`` (K, 2, 2) px^2,
+    widened by ``pixel_var`` px^2; rows of 0 where a blob has none (lost: NaN, or never seen)."""
+    cxx, cxy, cyy = cov[:, 0, 0] + pixel_var, cov[:, 0, 1], cov[:, 1, 1] + pixel_var
+    det = cxx * cyy - cxy * cxy
+    ok = np.isfinite(det) & (det > 0) & (cov[:, 0, 0] + cov[:, 1, 1] > 0)
+    out = np.zeros((len(cov), 3))
+    out[ok] = np.column_stack([cyy[ok], -cxy[ok], cxx[ok]]) / det[ok, None]
+    return out
 
 
 class BlobTracker:
@@ -101,6 +114,7 @@ class BlobTracker:
         self._sums = np.zeros((K, N_MOMENTS))
         self._out_xy = np.zeros((K, 2))
         self._out_cov = np.zeros((K, 2, 2))
+        self._shape = _NO_SHAPE
         self._out_area = np.zeros(K)
         self._out_contours = np.zeros((K, params.n_contour_pts, 2))
         self._has_contour = np.zeros(K, np.bool_)
@@ -166,6 +180,8 @@ class BlobTracker:
         if p.snap_to_regions and K >= 2:
             centers = self._snap_to_regions(skin_roi, box, centers, gate)
         mirror = p.mirror_iters if sil_roi is not None else 0
+        if p.label_by_shape:
+            self._shape = inverse_shapes(self._out_cov)
         found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
         acquired = self._none_acquired
         if not found.all():
@@ -189,7 +205,8 @@ class BlobTracker:
         label_and_refine(skin_roi, sil, box[0], box[1], box[2], box[3], np.ascontiguousarray(centers, np.float64),
                          np.ascontiguousarray(gate, np.float64), self._size, visible,
                          kp, self._sums, self._out_xy,
-                         self._out_cov, self._out_area, self._out_contours, self._has_contour)
+                         self._out_cov, self._out_area, self._out_contours, self._has_contour,
+                         self._shape if p.label_by_shape else _NO_SHAPE)
         return self._sums[:, 0] >= p.min_area_px
 
     # ------------------------------------------------------------------ internals

@@ -61,8 +61,8 @@ class PerceptionConfig:
     """
 
     change: ChangeThresholds = ChangeThresholds()
-    skin_blobs: BlobParams = BlobParams()
-    shoe_blobs: BlobParams = BlobParams()
+    skin_blobs: BlobParams = BlobParams()  # by size: head and hands (docs/perception.md, Blobs)
+    shoe_blobs: BlobParams = BlobParams(label_by_shape=True)  # touching shoes split along their seam
     skin_model_path: str = ""
     shoe_model_path: str = ""
     roi_margin_px: int = 16               # ROI = previous person box + this ...

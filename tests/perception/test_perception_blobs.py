@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from mocap_rt.perception.blob_kernels import REFINE_PARAMS, deform_ellipse, label_moments, params_record
 from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions
 from mocap_rt.perception.blobs import (SNAP_MAX_REGIONS, SNAP_NEAR_GATES, SNAP_WINDOW_GATES, BlobParams,
-                                       BlobTracker)
+                                       BlobTracker, inverse_shapes)
 
 _NO_SITES = np.full((1, 2), np.nan)
 
@@ -41,7 +41,7 @@ def test_label_moments_matches_numpy_reference(seed):
     gate = rng.uniform(5, 30, 3)
     size = rng.uniform(3, 20, 3)
     sums = np.zeros((3, 6))
-    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, 1.0 / size ** 2, sums)
+    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, 1.0 / size ** 2, sums, np.zeros((0, 3)))
     ys, xs = np.nonzero(skin[3:38, 2:45])
     xs, ys = xs + 2.0, ys + 3.0
     d = (xs[:, None] - centers[None, :, 0]) ** 2 + (ys[:, None] - centers[None, :, 1]) ** 2
@@ -52,6 +52,67 @@ def test_label_moments_matches_numpy_reference(seed):
         x, y = xs[sel], ys[sel]
         ref = [sel.sum(), x.sum(), y.sum(), (x * x).sum(), (x * y).sum(), (y * y).sum()]
         np.testing.assert_allclose(sums[k], ref)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_label_moments_by_shape_matches_numpy_reference(seed):
+    """With a shape for every tracked blob, each pixel in a gate goes to the blob of least
+    Mahalanobis distance + log det of its covariance (the Gaussian discriminant)."""
+    rng = np.random.default_rng(seed)
+    skin = (rng.random((40, 50)) < 0.3).astype(np.float32)
+    centers = rng.uniform(0, 50, (3, 2))
+    gate = rng.uniform(5, 30, 3)
+    A = rng.normal(size=(3, 2, 2)) * rng.uniform(1, 6, (3, 1, 1))
+    cov = A @ np.transpose(A, (0, 2, 1)) + np.eye(2)
+    shape = inverse_shapes(cov, pixel_var=0.0)
+    sums = np.zeros((3, 6))
+    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, np.ones(3), sums, shape)
+    ys, xs = np.nonzero(skin[3:38, 2:45])
+    xs, ys = xs + 2.0, ys + 3.0
+    dx, dy = xs[:, None] - centers[None, :, 0], ys[:, None] - centers[None, :, 1]
+    inv = np.linalg.inv(cov)
+    m = inv[:, 0, 0] * dx * dx + 2 * inv[:, 0, 1] * dx * dy + inv[:, 1, 1] * dy * dy + np.log(np.linalg.det(cov))
+    m = np.where(dx * dx + dy * dy < gate * gate, m, np.inf)
+    lab = np.where(np.isfinite(m.min(axis=1)), m.argmin(axis=1), -1)
+    for k in range(3):
+        sel = lab == k
+        x, y = xs[sel], ys[sel]
+        ref = [sel.sum(), x.sum(), y.sum(), (x * x).sum(), (x * y).sum(), (y * y).sum()]
+        np.testing.assert_allclose(sums[k], ref, rtol=1e-9)
+
+
+def test_inverse_shapes_are_the_inverse_covariances_and_zero_without_one():
+    cov = np.array([[[9.0, 2.0], [2.0, 4.0]], [[np.nan] * 2] * 2, [[0.0, 0.0], [0.0, 0.0]]])
+    got = inverse_shapes(cov, pixel_var=1.0)
+    inv = np.linalg.inv(cov[0] + np.eye(2))
+    np.testing.assert_allclose(got[0], [inv[0, 0], inv[0, 1], inv[1, 1]])
+    np.testing.assert_array_equal(got[1:], 0.0)     # lost (NaN) and never seen (zeros): none
+
+
+def test_two_touching_shoes_are_split_along_their_length_by_shape():
+    """Two elongated blobs side by side, offset along their length so that they touch: the
+    nearest-centre labelling cuts across both, the shapes' (``label_by_shape``) follows the
+    seam between them. Truth: the two drawn ellipses."""
+    a = _ellipse_map((60, 90), (38.0, 26.0), (18.0, 6.0), 0.0) > 0
+    b = _ellipse_map((60, 90), (52.0, 37.0), (18.0, 6.0), 0.0) > 0
+    skin = (a | b).astype(np.float32)
+    assert cv2.connectedComponents(skin.astype(np.uint8))[0] == 2      # one region (+ background)
+    own = np.stack([a & ~b, b & ~a])                                  # pixels only one shoe covers
+    centers = np.array([[38.0, 26.0], [52.0, 37.0]])
+    cov = np.array([[[81.0, 0.0], [0.0, 9.0]]] * 2)                  # (18/2)^2, (6/2)^2: the shoes' shapes
+    correct = {}
+    for name, shape in (("nearest", np.zeros((0, 3))), ("shape", inverse_shapes(cov, pixel_var=0.0))):
+        lab = np.full(skin.shape, -1)
+        for y, x in zip(*np.nonzero(skin)):
+            sums = np.zeros((2, 6))
+            one = np.zeros_like(skin)
+            one[y, x] = 1.0
+            label_moments(one, x, y, x + 1, y + 1, centers, np.full(2, 1e6), np.ones(2), sums, shape)
+            lab[y, x] = int(np.argmax(sums[:, 0]))
+        correct[name] = sum(int(np.sum(own[k] & (lab == k))) for k in range(2)) / int(own.sum())
+    assert correct["shape"] > 0.97
+    assert correct["nearest"] < 0.9
 
 
 @pytest.mark.parametrize("centre,axes,angle", [((40.3, 35.7), (12.0, 7.5), 30.0), ((50.0, 50.0), (20.0, 20.0), 0.0),
