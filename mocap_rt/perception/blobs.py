@@ -115,6 +115,7 @@ class BlobTracker:
         self._out_xy = np.zeros((K, 2))
         self._out_cov = np.zeros((K, 2, 2))
         self._shape = _NO_SHAPE
+        self._apart_cov = np.zeros((K, 2, 2))   # each blob's covariance when last apart from the others
         self._out_area = np.zeros(K)
         self._out_contours = np.zeros((K, params.n_contour_pts, 2))
         self._has_contour = np.zeros(K, np.bool_)
@@ -177,11 +178,12 @@ class BlobTracker:
             return BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K),
                              [None] * K)
         box = (bx, by, bx + bw, by + bh)
+        apart = False
         if p.snap_to_regions and K >= 2:
-            centers = self._snap_to_regions(skin_roi, box, centers, gate)
+            centers, apart = self._snap_to_regions(skin_roi, box, centers, gate)
         mirror = p.mirror_iters if sil_roi is not None else 0
         if p.label_by_shape:
-            self._shape = inverse_shapes(self._out_cov)
+            self._shape = inverse_shapes(self._apart_cov)
         found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
         acquired = self._none_acquired
         if not found.all():
@@ -190,6 +192,9 @@ class BlobTracker:
                 centers = np.where(acquired[:, None], self._acq_centers, centers)
                 gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
                 found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
+        if p.label_by_shape and apart:
+            # each blob's pixels were its own region: its shape, for the frames they touch
+            self._apart_cov[found] = self._out_cov[found]
         xy, conf = np.empty((K, 2)), np.empty(K)
         finish_frame(self._sums[:, 0], found, visible, acquired, 4.0 * p.min_area_px, float(ox), float(oy),
                      self._out_xy, self._out_cov, xy, conf, self._xy, self._vel, self._radius, self._coast,
@@ -222,14 +227,16 @@ class BlobTracker:
         frame), and labelling pixels by proximity to lagging predictions splits one shoe
         between both feet or hands the swing foot to the standing one. Regions that merged
         (touching shoes) are not enough regions: then the predictions stay the centres.
+        Returns the centres and whether the blobs are apart (each on its own region, or none
+        near another).
         """
         wx0, wy0, wx1, wy1 = snap_window(centers, gate, *box, SNAP_NEAR_GATES, SNAP_WINDOW_GATES)
         if wx1 <= wx0:
-            return centers
+            return centers, True
         n, stats = colour_regions(skin_roi, wx0, wy0, wx1, wy1)
         out = centers.copy()
         snap_regions(stats, n, wx0, wy0, centers, gate, self.params.acquire_min_area_px, SNAP_MAX_REGIONS, out)
-        return out
+        return out, not np.array_equal(out, centers, equal_nan=True)
 
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
         """Assign unclaimed colour regions to missing blobs; sets ``_acq_centers``/``_acq_gate``."""

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mocap_rt.perception.blob_kernels import REFINE_PARAMS, deform_ellipse, label_moments, params_record
-from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions
+from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions, snap_window
 from mocap_rt.perception.blobs import (SNAP_MAX_REGIONS, SNAP_NEAR_GATES, SNAP_WINDOW_GATES, BlobParams,
                                        BlobTracker, inverse_shapes)
 
@@ -415,8 +415,11 @@ def test_region_snap_matches_reference(seed):
     gate = rng.uniform(4, 20, K)
     box = (int(rng.integers(0, 10)), int(rng.integers(0, 10)), int(rng.integers(60, 91)), int(rng.integers(50, 71)))
     tr = BlobTracker(("hand_l", "hand_r", "head")[:K])
-    got = tr._snap_to_regions(skin, box, centers, gate)
-    np.testing.assert_array_equal(got, _reference_snap(skin, box, centers, gate, tr.params.acquire_min_area_px))
+    got, apart = tr._snap_to_regions(skin, box, centers, gate)
+    ref = _reference_snap(skin, box, centers, gate, tr.params.acquire_min_area_px)
+    np.testing.assert_array_equal(got, ref)
+    wx0, _, wx1, _ = snap_window(centers, gate, *box, SNAP_NEAR_GATES, SNAP_WINDOW_GATES)
+    assert apart == (wx1 <= wx0 or not np.array_equal(ref, centers, equal_nan=True))   # no blob near another, or snapped
 
 
 @settings(max_examples=30, deadline=None)
