@@ -33,6 +33,10 @@ def params_record(dtype: np.dtype, source, **override) -> np.ndarray:
     return out
 
 
+# px^2 added to each axis of a shape's covariance (``label_moments``): the pixel grid's own spread
+SHAPE_PIXEL_VAR = 1.0
+
+
 @numba.njit(cache=True, nogil=True)
 def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums, shape):  # pragma: no cover - numba
     """Initial labelling (A.2): each colour pixel to the predicted centre nearest in units of
@@ -45,10 +49,10 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums, shape)
     the split lies where the two predicted discs touch, not halfway between the centres
     (issue 12: a merged skin region is split by the predicted blobs). Equal sizes: nearest.
     sums (K, 6) float64 is overwritten with the moments of each blob's pixels.
-    shape (K, 3) float64 (or (0, 3): none): each blob's inverse covariance (i_xx, i_xy, i_yy,
-    px^-2) as expected this frame; when every tracked blob has one (i_xx > 0) a pixel goes
-    instead to the blob of least Mahalanobis distance + log det of its covariance (the
-    Gaussian discriminant: the likeliest blob), so two elongated blobs that touch side by
+    shape (K, 2, 2) float64 (or (0, 2, 2): none): each blob's expected covariance, px^2
+    (widened by ``SHAPE_PIXEL_VAR``); when every tracked blob has one (positive trace) a
+    pixel goes instead to the blob of least Mahalanobis distance + log det of its covariance
+    (the Gaussian discriminant: the likeliest blob), so two elongated blobs that touch side by
     side, e.g. two shoes, are split along their seam rather than across their length.
     """
     K = centers.shape[0]
@@ -56,14 +60,21 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums, shape)
         for j in range(N_MOMENTS):
             sums[k, j] = 0.0
     by_shape = shape.shape[0] == K
-    log_det = np.zeros(K)
+    inv = np.zeros((K, 4))                  # i_xx, i_xy, i_yy, log det of each blob's covariance
     if by_shape:
         for k in range(K):
             if math.isfinite(centers[k, 0]):
-                if not shape[k, 0] > 0.0:
+                cxx = shape[k, 0, 0] + SHAPE_PIXEL_VAR
+                cxy = shape[k, 0, 1]
+                cyy = shape[k, 1, 1] + SHAPE_PIXEL_VAR
+                det = cxx * cyy - cxy * cxy
+                if not (shape[k, 0, 0] + shape[k, 1, 1] > 0.0 and det > 0.0):
                     by_shape = False
                 else:
-                    log_det[k] = -math.log(shape[k, 0] * shape[k, 2] - shape[k, 1] * shape[k, 1])
+                    inv[k, 0] = cyy / det
+                    inv[k, 1] = -cxy / det
+                    inv[k, 2] = cxx / det
+                    inv[k, 3] = math.log(det)
     for y in range(y0, y1):
         for x in range(x0, x1):
             if skin[y, x] < 0.5:
@@ -76,7 +87,7 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums, shape)
                 d = dx * dx + dy * dy
                 if d < gate2[k]:
                     if by_shape:
-                        m = shape[k, 0] * dx * dx + 2.0 * shape[k, 1] * dx * dy + shape[k, 2] * dy * dy + log_det[k]
+                        m = inv[k, 0] * dx * dx + 2.0 * inv[k, 1] * dx * dy + inv[k, 2] * dy * dy + inv[k, 3]
                     else:
                         m = d * inv_scale2[k]
                     if m < bd:

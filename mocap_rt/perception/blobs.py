@@ -85,18 +85,7 @@ ACQUIRE_MAX_REGIONS = 4     # re-acquisition considers the largest this many unc
 ROLE_SIZE = {"head": 2.0, "hand_l": 1.0, "hand_r": 1.0, "foot_l": 1.0, "foot_r": 1.0}
 _NAN_K2 = np.full((8, 2), np.nan)       # "no prediction" placeholders (K <= 8)
 _NAN_K = np.full(8, np.nan)
-_NO_SHAPE = np.zeros((0, 3))
-
-
-def inverse_shapes(cov: np.ndarray, pixel_var: float = 1.0) -> np.ndarray:
-    """(K, 3) inverse covariances (i_xx, i_xy, i_yy) of blob covariances ``cov`` (K, 2, 2) px^2,
-    widened by ``pixel_var`` px^2; rows of 0 where a blob has none (lost: NaN, or never seen)."""
-    cxx, cxy, cyy = cov[:, 0, 0] + pixel_var, cov[:, 0, 1], cov[:, 1, 1] + pixel_var
-    det = cxx * cyy - cxy * cxy
-    ok = np.isfinite(det) & (det > 0) & (cov[:, 0, 0] + cov[:, 1, 1] > 0)
-    out = np.zeros((len(cov), 3))
-    out[ok] = np.column_stack([cyy[ok], -cxy[ok], cxx[ok]]) / det[ok, None]
-    return out
+_NO_SHAPE = np.zeros((0, 2, 2))
 
 
 class BlobTracker:
@@ -114,7 +103,6 @@ class BlobTracker:
         self._sums = np.zeros((K, N_MOMENTS))
         self._out_xy = np.zeros((K, 2))
         self._out_cov = np.zeros((K, 2, 2))
-        self._shape = _NO_SHAPE
         self._apart_cov = np.zeros((K, 2, 2))   # each blob's covariance when last apart from the others
         self._out_area = np.zeros(K)
         self._out_contours = np.zeros((K, params.n_contour_pts, 2))
@@ -182,8 +170,6 @@ class BlobTracker:
         if p.snap_to_regions and K >= 2:
             centers, apart = self._snap_to_regions(skin_roi, box, centers, gate)
         mirror = p.mirror_iters if sil_roi is not None else 0
-        if p.label_by_shape:
-            self._shape = inverse_shapes(self._apart_cov)
         found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
         acquired = self._none_acquired
         if not found.all():
@@ -211,7 +197,7 @@ class BlobTracker:
                          np.ascontiguousarray(gate, np.float64), self._size, visible,
                          kp, self._sums, self._out_xy,
                          self._out_cov, self._out_area, self._out_contours, self._has_contour,
-                         self._shape if p.label_by_shape else _NO_SHAPE)
+                         self._apart_cov if p.label_by_shape else _NO_SHAPE)
         return self._sums[:, 0] >= p.min_area_px
 
     # ------------------------------------------------------------------ internals
@@ -235,8 +221,8 @@ class BlobTracker:
             return centers, True
         n, stats = colour_regions(skin_roi, wx0, wy0, wx1, wy1)
         out = centers.copy()
-        snap_regions(stats, n, wx0, wy0, centers, gate, self.params.acquire_min_area_px, SNAP_MAX_REGIONS, out)
-        return out, not np.array_equal(out, centers, equal_nan=True)
+        snapped = snap_regions(stats, n, wx0, wy0, centers, gate, self.params.acquire_min_area_px, SNAP_MAX_REGIONS, out)
+        return out, bool(snapped)
 
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
         """Assign unclaimed colour regions to missing blobs; sets ``_acq_centers``/``_acq_gate``."""

@@ -8,10 +8,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mocap_rt.perception.blob_kernels import REFINE_PARAMS, deform_ellipse, label_moments, params_record
+from mocap_rt.perception.blob_kernels import (REFINE_PARAMS, SHAPE_PIXEL_VAR, deform_ellipse, label_moments,
+                                             params_record)
 from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions, snap_window
 from mocap_rt.perception.blobs import (SNAP_MAX_REGIONS, SNAP_NEAR_GATES, SNAP_WINDOW_GATES, BlobParams,
-                                       BlobTracker, inverse_shapes)
+                                       BlobTracker)
 
 _NO_SITES = np.full((1, 2), np.nan)
 
@@ -41,7 +42,7 @@ def test_label_moments_matches_numpy_reference(seed):
     gate = rng.uniform(5, 30, 3)
     size = rng.uniform(3, 20, 3)
     sums = np.zeros((3, 6))
-    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, 1.0 / size ** 2, sums, np.zeros((0, 3)))
+    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, 1.0 / size ** 2, sums, np.zeros((0, 2, 2)))
     ys, xs = np.nonzero(skin[3:38, 2:45])
     xs, ys = xs + 2.0, ys + 3.0
     d = (xs[:, None] - centers[None, :, 0]) ** 2 + (ys[:, None] - centers[None, :, 1]) ** 2
@@ -64,15 +65,15 @@ def test_label_moments_by_shape_matches_numpy_reference(seed):
     centers = rng.uniform(0, 50, (3, 2))
     gate = rng.uniform(5, 30, 3)
     A = rng.normal(size=(3, 2, 2)) * rng.uniform(1, 6, (3, 1, 1))
-    cov = A @ np.transpose(A, (0, 2, 1)) + np.eye(2)
-    shape = inverse_shapes(cov, pixel_var=0.0)
+    cov = A @ np.transpose(A, (0, 2, 1))
     sums = np.zeros((3, 6))
-    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, np.ones(3), sums, shape)
+    label_moments(skin, 2, 3, 45, 38, centers, gate * gate, np.ones(3), sums, cov)
     ys, xs = np.nonzero(skin[3:38, 2:45])
     xs, ys = xs + 2.0, ys + 3.0
     dx, dy = xs[:, None] - centers[None, :, 0], ys[:, None] - centers[None, :, 1]
-    inv = np.linalg.inv(cov)
-    m = inv[:, 0, 0] * dx * dx + 2 * inv[:, 0, 1] * dx * dy + inv[:, 1, 1] * dy * dy + np.log(np.linalg.det(cov))
+    wide = cov + SHAPE_PIXEL_VAR * np.eye(2)
+    inv = np.linalg.inv(wide)
+    m = inv[:, 0, 0] * dx * dx + 2 * inv[:, 0, 1] * dx * dy + inv[:, 1, 1] * dy * dy + np.log(np.linalg.det(wide))
     m = np.where(dx * dx + dy * dy < gate * gate, m, np.inf)
     lab = np.where(np.isfinite(m.min(axis=1)), m.argmin(axis=1), -1)
     for k in range(3):
@@ -82,12 +83,18 @@ def test_label_moments_by_shape_matches_numpy_reference(seed):
         np.testing.assert_allclose(sums[k], ref, rtol=1e-9)
 
 
-def test_inverse_shapes_are_the_inverse_covariances_and_zero_without_one():
-    cov = np.array([[[9.0, 2.0], [2.0, 4.0]], [[np.nan] * 2] * 2, [[0.0, 0.0], [0.0, 0.0]]])
-    got = inverse_shapes(cov, pixel_var=1.0)
-    inv = np.linalg.inv(cov[0] + np.eye(2))
-    np.testing.assert_allclose(got[0], [inv[0, 0], inv[0, 1], inv[1, 1]])
-    np.testing.assert_array_equal(got[1:], 0.0)     # lost (NaN) and never seen (zeros): none
+@pytest.mark.parametrize("missing", [np.nan, 0.0])
+def test_labelling_falls_back_to_sizes_when_a_tracked_blob_has_no_shape(missing):
+    """A blob never apart (zero covariance) or lost (NaN): every blob is labelled by size."""
+    rng = np.random.default_rng(5)
+    skin = (rng.random((40, 50)) < 0.3).astype(np.float32)
+    centers, gate2, size = rng.uniform(0, 50, (3, 2)), np.full(3, 400.0), np.array([1.0, 2.0, 1.0])
+    cov = np.array([[[30.0, 5.0], [5.0, 8.0]]] * 3)
+    cov[1] = missing
+    by_size, mixed = np.zeros((3, 6)), np.zeros((3, 6))
+    label_moments(skin, 0, 0, 50, 40, centers, gate2, 1.0 / size ** 2, by_size, np.zeros((0, 2, 2)))
+    label_moments(skin, 0, 0, 50, 40, centers, gate2, 1.0 / size ** 2, mixed, cov)
+    np.testing.assert_array_equal(mixed, by_size)
 
 
 def test_two_touching_shoes_are_split_along_their_length_by_shape():
@@ -102,7 +109,7 @@ def test_two_touching_shoes_are_split_along_their_length_by_shape():
     centers = np.array([[38.0, 26.0], [52.0, 37.0]])
     cov = np.array([[[81.0, 0.0], [0.0, 9.0]]] * 2)                  # (18/2)^2, (6/2)^2: the shoes' shapes
     correct = {}
-    for name, shape in (("nearest", np.zeros((0, 3))), ("shape", inverse_shapes(cov, pixel_var=0.0))):
+    for name, shape in (("nearest", np.zeros((0, 2, 2))), ("shape", cov)):
         lab = np.full(skin.shape, -1)
         for y, x in zip(*np.nonzero(skin)):
             sums = np.zeros((2, 6))
@@ -282,6 +289,45 @@ def test_cold_start_acquires_a_lone_shoe_by_its_side():
         out = tr.step(_feet_frame(pos, None), (0, 0), (0, 0, 200, 160), None)
         np.testing.assert_allclose(out.xy[expect], pos, atol=0.5)
         assert np.isnan(out.xy[1 - expect]).all() and out.confidence[1 - expect] == 0
+
+
+def test_touching_shoes_are_labelled_by_the_shapes_they_had_apart():
+    """Two shoes seen apart, then touching side by side, staggered along their length (one
+    colour region): the tracker labels that region by the shapes it measured while the shoes
+    were apart, and each cue stays on its shoe; by nearest centre (``label_by_shape`` off) one
+    shoe takes the other's heel. Truth: the centroids of the drawn shoes."""
+    a = _ellipse_map((160, 200), (90.0, 70.0), (18.0, 6.0), 0.0) > 0
+    errors = {}
+    for by_shape in (True, False):
+        tr = BlobTracker(("foot_l", "foot_r"), BlobParams(label_by_shape=by_shape))
+        for dy in (35.0, 29.0, 23.0, 17.0, 11.0):              # the second shoe comes closer
+            b = _ellipse_map((160, 200), (104.0, 70.0 + dy), (18.0, 6.0), 0.0) > 0
+            out = tr.step((a | b).astype(np.float32), (0, 0), (0, 0, 200, 160), None)
+        assert cv2.connectedComponents((a | b).astype(np.uint8))[0] == 2     # touching: one region
+        truth = np.array([np.argwhere(m)[:, ::-1].mean(axis=0) for m in (a, b)])
+        d = np.linalg.norm(out.xy[:, None] - truth[None], axis=-1)           # (cue, shoe)
+        errors[by_shape] = min(d[0, 0] + d[1, 1], d[0, 1] + d[1, 0]) / 2
+    assert errors[True] < 1.0
+    assert errors[False] > 2.0 * errors[True]
+
+
+def test_shoes_never_seen_apart_are_labelled_by_size():
+    """Shoes that touch from the first frame (a person standing, seen from the side) have no
+    shape measured apart: the cues are those of the labelling by size, frame after frame (a
+    shape taken from a merged region would feed its own wrong split)."""
+    runs = []
+    for by_shape in (True, False):
+        tr = BlobTracker(("foot_l", "foot_r"), BlobParams(label_by_shape=by_shape))
+        xy = []
+        for x in (90.0, 92.0, 94.0, 96.0):
+            centres = np.array([[x, 70.0], [x + 10.0, 74.0]])      # tracked from the start (fusion's prediction)
+            a, b = (_ellipse_map((160, 200), c, (18.0, 6.0), 0.0) > 0 for c in centres)
+            out = tr.step((a | b).astype(np.float32), (0, 0), (0, 0, 200, 160), None, centres, np.ones(2, bool),
+                          np.full(2, 18.0))
+            xy.append(out.xy)
+        runs.append(np.array(xy))
+    assert np.isfinite(runs[0]).all()
+    np.testing.assert_array_equal(runs[0], runs[1])
 
 
 def _own_map(skin, sites, k):
