@@ -33,7 +33,8 @@ def params_record(dtype: np.dtype, source, **override) -> np.ndarray:
     return out
 
 
-# px^2 added to each axis of a shape's covariance (``label_moments``): the pixel grid's own spread
+# px^2 added to each axis of a shape's covariance (``label_moments``), beyond the 1/12 px^2 of
+# pixel extent the moments already hold: a blob one pixel thin still has a finite inverse
 SHAPE_PIXEL_VAR = 1.0
 
 

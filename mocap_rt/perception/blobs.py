@@ -60,7 +60,8 @@ class BlobParams:
     facing_camera: bool = True          # cold-start convention: image-left = person's right
     snap_to_regions: bool = True        # label around the blobs' own colour regions when each has one
     acquire_lone_region: bool = True    # one region for a missing left/right pair: acquire it for one of them
-    label_by_shape: bool = False        # label by each blob's last covariance (Gaussian discriminant), not its size
+    label_by_shape: bool = False        # label by each blob's covariance when last apart (Gaussian discriminant),
+                                        # not its size; apart is told by snap_to_regions (off: by size)
 
 
 @dataclass
