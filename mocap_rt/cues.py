@@ -138,6 +138,8 @@ class CameraCues:
     bbox : (x, y, w, h) int pixels of the person; (0, 0, 0, 0) when there is none.
     timings_ms : per-stage processing time of this frame, milliseconds.
     silhouette : the person's compact silhouette (None: not sent).
+    leg_xy : (2, 2) float64 pixels where the legs meet the left and right shoe blobs
+        (``perception.leg_attach``), NaN where not measured; None: not sent.
     """
 
     camera: str
@@ -149,9 +151,12 @@ class CameraCues:
     bbox: tuple[int, int, int, int] = (0, 0, 0, 0)
     timings_ms: dict = field(default_factory=dict)
     silhouette: CompactSilhouette | None = None
+    leg_xy: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "xy", _arr(self.xy, (N_CUES, 2), np.float64, "xy"))
+        if self.leg_xy is not None:
+            object.__setattr__(self, "leg_xy", _arr(self.leg_xy, (2, 2), np.float64, "leg_xy"))
         object.__setattr__(self, "cov", _arr(self.cov, (N_CUES, 2, 2), np.float64, "cov"))
         object.__setattr__(self, "area", _arr(self.area, (N_CUES,), np.float64, "area"))
         object.__setattr__(self, "confidence", _arr(self.confidence, (N_CUES,), np.float64, "confidence"))
@@ -168,18 +173,20 @@ class CameraCues:
                    np.zeros(N_CUES), np.zeros(N_CUES))
 
     def to_dict(self) -> dict:
-        """The fields; the silhouette (key ``sil``) only when there is one."""
+        """The fields; the silhouette (key ``sil``) and the legs' attachments (``leg``) only
+        when there are."""
         return {"camera": self.camera, "frame": int(self.frame), "xy": self.xy, "cov": self.cov,
                 "area": self.area, "confidence": self.confidence, "bbox": [int(v) for v in self.bbox],
                 "timings_ms": {str(k): float(v) for k, v in self.timings_ms.items()},
-                **({} if self.silhouette is None else {"sil": self.silhouette.to_dict()})}
+                **({} if self.silhouette is None else {"sil": self.silhouette.to_dict()}),
+                **({} if self.leg_xy is None else {"leg": self.leg_xy})}
 
     @classmethod
     def from_dict(cls, d: dict) -> "CameraCues":
         sil = d.get("sil")
         return cls(str(d["camera"]), int(d["frame"]), d["xy"], d["cov"], d["area"], d["confidence"],
                    tuple(d["bbox"]), dict(d.get("timings_ms", {})),
-                   None if sil is None else CompactSilhouette.from_dict(sil))
+                   None if sil is None else CompactSilhouette.from_dict(sil), d.get("leg"))
 
 
 @dataclass(frozen=True, slots=True)

@@ -34,6 +34,7 @@ from mocap_rt.perception.components import largest_component_box
 from mocap_rt.perception.blobs import BlobParams, BlobTracker
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_model_from_spec
 from mocap_rt.perception.roi import ChangeMask, roi_candidates
+from mocap_rt.perception.leg_attach import MIN_BLOB_AREA_PX, leg_attachment
 from mocap_rt.perception.scene import TORSO_HEAD_RADII, SceneState, check_head, torso_from_head
 from mocap_rt.perception.silhouette import half_cells, silhouette_colour
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
@@ -181,6 +182,8 @@ class CameraPerceiver:
             for k, c in zip(range(idx.start, idx.stop), res.contours):
                 if c is not None:
                     self.last_contours[CUE_NAMES[k]] = c
+        leg_xy = np.empty((2, 2))
+        leg_attachment(sil, bx, by, xy[_SHOE_IDX], cov[_SHOE_IDX], area[_SHOE_IDX], MIN_BLOB_AREA_PX, leg_xy)
         t3 = time.perf_counter()
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
         ridge = txy + (bx, by)
@@ -211,7 +214,7 @@ class CameraPerceiver:
         t5 = time.perf_counter()
         timings = {"silhouette": (t1 - t0) * 1e3, "colour": (t2 - t1) * 1e3, "blobs": (t3 - t2) * 1e3,
                    "torso": (t4 - t3) * 1e3, "total": (t5 - t0) * 1e3}
-        return CameraCues(self.camera.name, frame, xy, cov, area, conf, box, timings, compact)
+        return CameraCues(self.camera.name, frame, xy, cov, area, conf, box, timings, compact, leg_xy)
 
     # ------------------------------------------------------------------ stages
     def _silhouette(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int]]:
