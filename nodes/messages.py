@@ -42,7 +42,8 @@ from mocap_rt.names import JOINT_NAMES
 from nodes.codec import (Decoder, Envelope, MessageError, check_name, decode_array, encode_array,  # noqa: F401
                          encode_fields, get_bytes, get_float, get_float_map, get_int, get_names, get_str, is_int)
 
-SCHEMA_VERSION = 3          # 2: Pose carries the bone lengths of its skeleton; 3: Cues may carry a silhouette
+SCHEMA_VERSION = 4          # 2: Pose carries the bone lengths of its skeleton; 3: Cues may carry a silhouette;
+                            # 4: ... and where the legs meet the shoes
 KEY_ROOT = "mocap"
 N_JOINTS = len(JOINT_NAMES)
 MAX_BVH_CHANNELS = 4096
@@ -119,7 +120,8 @@ class Cues(Message):
     """Camera worker -> fusion: one camera's cues for one triggered frame.
 
     The cues may carry the camera's compact silhouette (body key ``sil``: cell origin,
-    step, width and the packed bits, <= ``SILHOUETTE_MAX_BYTES``; schema 3).
+    step, width and the packed bits, <= ``SILHOUETTE_MAX_BYTES``; schema 3) and where the legs
+    meet the two shoe blobs (``leg``: (2, 2) float64 px, NaN = not measured; schema 4).
 
     t_trigger_mono_ns : the trigger's stamp (copied); t_grab_mono_ns : when the image was
     taken (replay: when it was read); processing_ms : grab + perception time.
@@ -127,7 +129,7 @@ class Cues(Message):
 
     TYPE: ClassVar[str] = "cues"
     MAX_BYTES: ClassVar[int] = 8192
-    OPTIONAL_FIELDS: ClassVar[tuple[str, ...]] = ("sil",)
+    OPTIONAL_FIELDS: ClassVar[tuple[str, ...]] = ("sil", "leg")
     rig: str
     cues: CameraCues
     t_trigger_mono_ns: int
@@ -144,9 +146,9 @@ class Cues(Message):
 
     def body(self) -> dict:
         fields = encode_fields(self.cues.to_dict())
-        sil = {"sil": fields.pop("sil")} if "sil" in fields else {}
+        optional = {k: fields.pop(k) for k in self.OPTIONAL_FIELDS if k in fields}
         return {"rig": self.rig, **fields, "t_trigger_mono_ns": self.t_trigger_mono_ns,
-                "t_grab_mono_ns": self.t_grab_mono_ns, "processing_ms": float(self.processing_ms), **sil}
+                "t_grab_mono_ns": self.t_grab_mono_ns, "processing_ms": float(self.processing_ms), **optional}
 
     @classmethod
     def from_body(cls, b: dict) -> "Cues":
@@ -161,6 +163,8 @@ class Cues(Message):
                   "bbox": bbox, "timings_ms": get_float_map(b, "timings_ms")}
         if "sil" in b:
             fields["sil"] = _silhouette_fields(b["sil"])
+        if "leg" in b:
+            fields["leg"] = decode_array(b["leg"], "leg", (2, 2), "<f8")
         return cls(get_str(b, "rig", True), CameraCues.from_dict(fields), get_int(b, "t_trigger_mono_ns", 0),
                    get_int(b, "t_grab_mono_ns", 0), get_float(b, "processing_ms"))
 

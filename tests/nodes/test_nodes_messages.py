@@ -219,11 +219,11 @@ def test_keys_are_under_the_rig_and_names_are_checked():
 
 def test_a_whole_image_silhouette_fits_a_cues_message_under_4_kb():
     """Worst case: the person fills the 640x480 image; the packed silhouette keeps its byte
-    budget (the step grows) and the whole Cues message stays under 4 KB."""
+    budget (the step grows) and the whole Cues message, the legs' attachments too, stays under 4 KB."""
     sil = CompactSilhouette.from_box_mask(np.ones((480, 640), np.uint8), (0, 0, 640, 480))
     assert sil.nbytes <= 3072 and sil.mask.all()
     cc = CameraCues("cam_1", 7, np.zeros((6, 2)), np.zeros((6, 2, 2)), np.ones(6), np.ones(6), (0, 0, 640, 480),
-                    {"total": 1.0}, sil)
+                    {"total": 1.0}, sil, np.zeros((2, 2)))
     payload = Cues("studio", cc, 1, 2, 3.0).to_msgpack()
     assert len(payload) <= 4096
     assert same(Cues.from_msgpack(payload).cues.silhouette, sil)
@@ -234,6 +234,15 @@ def test_a_silhouette_whose_bits_do_not_fit_its_width_is_a_counted_drop():
                     CompactSilhouette(0, 0, 2, np.ones((10, 10), bool)))
     env = msgpack.unpackb(Cues("studio", cc, 1, 2, 3.0).to_msgpack(), raw=False)
     env["b"]["sil"]["w"] = 30                       # 30 cells need 4 bytes a row, the rows have 2
+    dec = Decoder("t")
+    assert dec.decode(msgpack.packb(env, use_bin_type=True), Cues) is None
+    assert dec.drops == {"cues": 1}
+
+
+def test_legs_of_the_wrong_shape_are_a_counted_drop():
+    cc = CameraCues("cam_1", 7, np.zeros((6, 2)), np.zeros((6, 2, 2)), np.ones(6), np.ones(6), leg_xy=np.zeros((2, 2)))
+    env = msgpack.unpackb(Cues("studio", cc, 1, 2, 3.0).to_msgpack(), raw=False)
+    env["b"]["leg"]["shape"] = [4]                 # 4 floats, but not (2, 2)
     dec = Decoder("t")
     assert dec.decode(msgpack.packb(env, use_bin_type=True), Cues) is None
     assert dec.drops == {"cues": 1}

@@ -17,7 +17,7 @@ def record(a: np.ndarray, dtype: str) -> dict:
 
 
 def envelope(t: str, body: dict) -> bytes:
-    return msgpack.packb({"v": 3, "t": t, "b": body}, use_bin_type=True)
+    return msgpack.packb({"v": 4, "t": t, "b": body}, use_bin_type=True)
 
 
 RNG = np.random.default_rng(15)
@@ -29,18 +29,22 @@ CONF = np.array([1.0, 0.5, 0.0, 1.0, 0.9, 0.3])
 MASK = RNG.random((5, 11)) > 0.5
 
 
-def test_schema_version_is_3():
-    assert SCHEMA_VERSION == 3
+def test_schema_version_is_4():
+    assert SCHEMA_VERSION == 4
+
+
+LEG = np.array([[101.5, 220.25], [np.nan, np.nan]])
 
 
 def test_cues_with_a_silhouette_encode_to_the_pinned_bytes_and_back():
     sil = CompactSilhouette(-3, 40, 4, MASK)
-    cues = CameraCues("cam_2", 17, XY, COV, AREA, CONF, (10, 20, 30, 40), {"total": 2.5}, sil)
+    cues = CameraCues("cam_2", 17, XY, COV, AREA, CONF, (10, 20, 30, 40), {"total": 2.5}, sil, LEG)
     body = {"rig": "studio", "camera": "cam_2", "frame": 17, "xy": record(XY, "<f8"), "cov": record(COV, "<f8"),
             "area": record(AREA, "<f8"), "confidence": record(CONF, "<f8"), "bbox": [10, 20, 30, 40],
             "timings_ms": {"total": 2.5}, "t_trigger_mono_ns": 111, "t_grab_mono_ns": 222,
             "processing_ms": 3.25,
-            "sil": {"x0": -3, "y0": 40, "step": 4, "w": 11, "bits": record(np.packbits(MASK, axis=1), "|u1")}}
+            "sil": {"x0": -3, "y0": 40, "step": 4, "w": 11, "bits": record(np.packbits(MASK, axis=1), "|u1")},
+            "leg": record(LEG, "<f8")}
     wire = envelope("cues", body)
     assert Cues("studio", cues, 111, 222, 3.25).to_msgpack() == wire
     back = Cues.from_msgpack(wire)
@@ -48,15 +52,18 @@ def test_cues_with_a_silhouette_encode_to_the_pinned_bytes_and_back():
     np.testing.assert_array_equal(back.cues.xy, XY)
     np.testing.assert_array_equal(back.cues.silhouette.mask, MASK)
     assert (back.cues.silhouette.x0, back.cues.silhouette.y0, back.cues.silhouette.step) == (-3, 40, 4)
+    np.testing.assert_array_equal(back.cues.leg_xy, LEG)
 
 
 def test_cues_without_a_silhouette_have_no_sil_key():
+    """... and without the legs' attachments no ``leg`` key."""
     cues = CameraCues("cam_1", 0, XY, COV, AREA, CONF)
     body = {"rig": "r", "camera": "cam_1", "frame": 0, "xy": record(XY, "<f8"), "cov": record(COV, "<f8"),
             "area": record(AREA, "<f8"), "confidence": record(CONF, "<f8"), "bbox": [0, 0, 0, 0],
             "timings_ms": {}, "t_trigger_mono_ns": 1, "t_grab_mono_ns": 2, "processing_ms": 0.0}
     assert Cues("r", cues, 1, 2, 0.0).to_msgpack() == envelope("cues", body)
-    assert Cues.from_msgpack(envelope("cues", body)).cues.silhouette is None
+    back = Cues.from_msgpack(envelope("cues", body)).cues
+    assert back.silhouette is None and back.leg_xy is None
 
 
 def test_prediction_encodes_to_the_pinned_bytes_and_back():
