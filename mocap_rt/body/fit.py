@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from mocap_rt.body.analytic import _LIMB_JOINTS, AnalyticConfig, _analytic, _angles_from_frames, limb_args
-from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, foot_axis_cost
+from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, N_FOOT_COLS, foot_axis_cost
 from mocap_rt.body.kinematics import fk_kernel
 from mocap_rt.body.limb_geometry import _cross, _rot_about, joint_violation
 from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SilhouetteTargets, body_capsules, capsules_cost, \
@@ -180,7 +180,7 @@ class BodyFitter:
         """Best pan and swivels for cues (6, 3) (all finite, metres, world) from ``axes``
         (3, 3) and the previous ``swivel`` (4,) radians; ``targets`` None = limits only.
         The pan is searched within +-``pan_search_deg`` in steps of ``pan_step_deg``, then
-        refined ``pan_refine`` times (defaults: the config's). ``feet`` (6, C, 3): the
+        refined ``pan_refine`` times (defaults: the config's). ``feet`` (6, C, N_FOOT_COLS): the
         measured shoe axes of ``targets``' cameras labelled like ``cues``
         (``foot_axis.foot_axes``); used with ``targets`` only (they carry the projection)."""
         c = self.config
@@ -194,9 +194,9 @@ class BodyFitter:
         have = targets is not None and targets.n_views > 0
         use_feet = targets is not None and feet is not None and c.foot_axis_weight > 0
         sil_args = targets.args() if (have or use_feet) else _NO_VIEWS
-        if use_feet and np.shape(feet) != (len(cues), targets.P.shape[0], 3):
-            raise ValueError(f"feet must be (cues, cameras, 3) = ({len(cues)}, {targets.P.shape[0]}, 3), "
-                             f"got {np.shape(feet)}")
+        if use_feet and np.shape(feet) != (len(cues), targets.P.shape[0], N_FOOT_COLS):
+            raise ValueError(f"feet must be (cues, cameras, {N_FOOT_COLS}) = ({len(cues)}, {targets.P.shape[0]}, "
+                             f"{N_FOOT_COLS}), got {np.shape(feet)}")
         feet2 = np.ascontiguousarray(feet[list(FOOT_CUES)], np.float64) if use_feet else _NO_FEET
         w = np.array([c.silhouette_weight if have else 0.0, c.pan_change_cost, c.swivel_change_cost,
                       c.swivel_prior_cost, c.foot_axis_weight if use_feet else 0.0])
@@ -209,6 +209,6 @@ class BodyFitter:
         return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]), float(terms[3]))
 
 
-_NO_FEET = np.zeros((2, 1, 3))
+_NO_FEET = np.zeros((2, 1, N_FOOT_COLS))
 _NO_VIEWS = (np.zeros((1, 3, 4)), np.ones(1), np.zeros((1, 6), np.int64), np.zeros(1, np.float32),
              np.zeros(1, np.int64), np.zeros((1, 1, 2)), np.zeros(1, np.int64))

@@ -23,6 +23,15 @@ and must not exchange its right feet). During the first ``acquire_frames`` of a
 track the threshold is ``acquire_factor`` times lower, so a cold start on any motion
 takes the right identity within a few frames, without a calibration pose.
 
+The legs stand on the heels. Perception measures where each leg's silhouette meets its shoe
+blob (``perception.leg_attach``); a body turned round puts its ankles at the toe ends
+(``foot_axis``, the legs' term). While a track acquires its identity (the first
+``acquire_frames``, when the facing is still open) the hypotheses are scored with that term,
+``legs_on_shoes_weight``; it speaks to the facing, not to which foot is which, so the hands
+and feet swaps are charged the current labelling's term and only the mirror its own. Past
+acquisition it is left out: scored on every frame it put the kicks' raised legs and feet
+together at the wrong ends (docs/body.md, "Foot direction: the heel end").
+
 Legs cannot pass through each other (``crossed_legs_cm2``): drawn from the last pose's hips
 to the feet cues, the two legs' lines must stay a shin's radius apart. Where the current feet
 labels bring them closer and the exchanged labels do not, the depth by which they would pass
@@ -40,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mocap_rt.body.fit import BodyFitter
+from mocap_rt.body.foot_axis import legs_only
 from mocap_rt.body.silhouette import SilhouetteTargets
 from mocap_rt.names import C_HEAD, C_TORSO, LR_PAIRS
 from mocap_rt.studio.body_shape import SHIN_RADIUS_M
@@ -73,6 +83,8 @@ class IdentityConfig:
     acquire_frames: int = 15        # the first frames of a track ...
     acquire_factor: float = 0.5     # ... switch on this fraction of the evidence
     crossed_legs_weight: float = 1.0  # per cm^2 of legs passing through each other (crossed_legs_cm2); 0 = off
+    legs_on_shoes_weight: float = 1.0  # per cm^2 of legs meeting the shoes off the ankles (body.foot_axis), while
+                                       # acquiring and for the mirror only (module doc); 0 = off
 
 
 @dataclass
@@ -113,15 +125,22 @@ def fill_missing(cues: np.ndarray, axes: np.ndarray, rest_cues: np.ndarray) -> n
 
 
 def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray, prev_axes: np.ndarray | None,
-                     targets: SilhouetteTargets | None, config: IdentityConfig) -> np.ndarray:
+                     targets: SilhouetteTargets | None, config: IdentityConfig,
+                     feet: np.ndarray | None = None) -> np.ndarray:
     """Costs (4,): the current labelling, then each of ALTERNATIVES, scored alike.
 
     cues (6, 3) metres (head and torso finite; missing hands/feet are filled at rest).
     Each hypothesis searches its pan within +-``pan_search_deg`` of the previous body axes
     ``prev_axes`` (3, 3) (turned by 180 deg for the mirror; the body's up from the cues),
     or, without previous axes, over the whole circle in steps of ``cold_step_deg``.
+    feet (6, C, 5): the shoe measurements labelled like ``cues`` (``foot_axis.foot_axes``),
+    relabelled with each hypothesis (None: not scored). Only where the legs meet the shoes is
+    scored, with ``legs_on_shoes_weight`` (the axes are the same for every labelling), and only
+    for the facing: the single swaps are charged the current labelling's term (module doc).
     """
+    feet = legs_only(feet, config.legs_on_shoes_weight)
     costs = np.empty(1 + len(ALTERNATIVES))
+    legs = np.zeros(1 + len(ALTERNATIVES))
     up = cues[C_HEAD] - cues[C_TORSO]
     up = up / max(float(np.linalg.norm(up)), 1e-9)
     right = np.array([1.0, 0.0, 0.0]) if prev_axes is None else prev_axes[:, 0]
@@ -129,15 +148,20 @@ def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray
     right = right / max(float(np.linalg.norm(right)), 1e-9)
     for h in range(1 + len(ALTERNATIVES)):
         X = cues if h == 0 else swap_pairs(cues, h - 1)
+        F = feet if (h == 0 or feet is None) else swap_pairs(feet, h - 1)
         r = -right if (h == 1 + ALTERNATIVES.index("mirror") and prev_axes is not None) else right
         axes = np.column_stack([r, np.cross(up, r), up])
         X = fill_missing(X, axes, rest_cues)
         if prev_axes is None:
-            costs[h] = fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=180.0,
-                                  pan_step_deg=config.cold_step_deg).cost
+            res = fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=180.0,
+                             pan_step_deg=config.cold_step_deg, feet=F)
         else:
-            costs[h] = fitter.fit(X, axes, None, targets, search_swivel=False,
-                                  pan_search_deg=config.pan_search_deg, pan_refine=config.pan_refine).cost
+            res = fitter.fit(X, axes, None, targets, search_swivel=False,
+                             pan_search_deg=config.pan_search_deg, pan_refine=config.pan_refine, feet=F)
+        costs[h], legs[h] = res.cost, res.foot_axis_cm2 * fitter.config.foot_axis_weight
+    if feet is not None:              # the legs score the facing: the single swaps keep the current's
+        single = [1 + k for k in _SINGLE]
+        costs[single] += legs[0] - legs[single]
     return costs
 
 

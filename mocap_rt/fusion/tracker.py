@@ -44,7 +44,7 @@ from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
 from mocap_rt.body.fit import BodyFitter, FitConfig
-from mocap_rt.body.foot_axis import follow_relabelling, foot_axes
+from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
@@ -208,7 +208,7 @@ class BodyTracker:
         """Body pose from six 3D cues (6, 3) (head and torso finite), updating the pan state.
 
         With silhouettes (``targets`` with views) the pan and the limb swivels are fitted to
-        them, the shoe axes ``feet`` (6, C, 3) (``foot_axis.foot_axes``, labelled like the cues)
+        them, the shoe axes ``feet`` (6, C, 5) (``foot_axis.foot_axes``, labelled like the cues)
         and the joint limits (``BodyFitter``); without, to the limits alone
         (``refine_pan``, ``refine_swivel``). Returns (root (3,), angles (J, 3) radians,
         joints (J, 3) metres, axes (3, 3)).
@@ -216,7 +216,7 @@ class BodyTracker:
         cfg = self.config.analytic
         axes = body_axes(cues_ik, self._right, velocity, cfg)
         if targets is not None and targets.n_views > 0:
-            res = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, self._swivel, targets, feet=feet)
+            res = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, self._swivel, targets, feet=axes_only(feet))
             axes, self._swivel = res.axes, res.swivel
         else:
             if cfg.pan_search_deg > 0:
@@ -314,7 +314,7 @@ class BodyTracker:
         t_id = time.perf_counter()
         timings["triangulate"] = (t_id - ts) * 1e3
         right_before = self._right          # the heading reference this frame's fit starts from
-        scored = self._identity_input(X, valid, pred, targets)
+        scored = self._identity_input(X, valid, pred, targets, feet)
         if scored is not None and self.identity.frames < self.config.identity.acquire_frames:
             # a track's first frames: its identity is being acquired, and a cold start's first
             # pose should not wait a frame for it, so the hypotheses are scored before the fit
@@ -360,12 +360,12 @@ class BodyTracker:
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
                             root, angles, pan, pair, cues_ik, axes, joint_valid)
 
-    def _identity_input(self, X: np.ndarray, valid: np.ndarray, pred: np.ndarray, targets: SilhouetteTargets | None
-                        ) -> tuple[np.ndarray, np.ndarray | None, SilhouetteTargets | None] | None:
+    def _identity_input(self, X: np.ndarray, valid: np.ndarray, pred: np.ndarray, targets: SilhouetteTargets | None,
+                        feet: np.ndarray | None) -> tuple | None:
         """What the identity scores, taken before the frame changes the state: the cues (6, 3)
-        (measured, else the filter's prediction ``pred`` (6, 3)), the previous frame's body axes
-        and the silhouettes; None when there is nothing to score. A body that (re)starts
-        acquires afresh."""
+        (measured, else the filter's prediction ``pred`` (6, 3)), the previous frame's body axes,
+        the silhouettes and the shoe measurements ``feet``; None when there is nothing to score.
+        A body that (re)starts acquires afresh."""
         if not self.filter.alive[[C_HEAD, C_TORSO]].all():
             self.identity.reset()        # the body (re)starts: acquire afresh, heading unknown
             self._axes = None
@@ -375,7 +375,7 @@ class BodyTracker:
         cues = np.where(valid[:, None], X, pred)
         if not np.isfinite(cues[[C_HEAD, C_TORSO]]).all():
             return None
-        return cues, self._axes, targets
+        return cues, self._axes, targets, feet
 
     def identify_frame(self, timings_ms: dict | None = None) -> None:
         """Stage 5 of the frame ``fit_frame`` just fitted (after the first ``acquire_frames`` of
@@ -404,12 +404,14 @@ class BodyTracker:
             timings_ms["total"] = timings_ms.get("total", 0.0) + ms
 
     def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None,
-                        targets: SilhouetteTargets | None) -> int:
+                        targets: SilhouetteTargets | None, feet: np.ndarray | None) -> int:
         """Score the hypotheses on ``cues`` (``_identity_input``); on a switch relabel the
         filter's tracks, turn the heading for a mirror and reset the limb swivels. Returns the
         alternative switched to (index into ALTERNATIVES) or -1."""
         cfg = self.config.identity
-        costs = score_hypotheses(self._fitter, cues, self._rest_cues, prev_axes, targets, cfg)
+        acquiring = self.identity.frames < cfg.acquire_frames     # the legs score the facing only then
+        costs = score_hypotheses(self._fitter, cues, self._rest_cues, prev_axes, targets, cfg,
+                                 feet if acquiring else None)
         if targets is None or targets.n_views == 0:
             costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
         # legs that pass through each other: a credit to the feet alternative (identity module doc)

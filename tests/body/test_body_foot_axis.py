@@ -92,8 +92,8 @@ def test_cost_is_zero_for_the_truth_and_the_hand_computed_sin2_law():
     cam = _fronto_camera()
     P, f = rig_projection([cam])
     c0 = np.array([0.1, 0.0, 0.3])
-    feet = np.zeros((2, 1, 3))
-    feet[:, 0] = (1.0, 0.0, 1.0)                       # both shoes measured horizontal, fully elongated
+    feet = np.zeros((2, 1, FA.N_FOOT_COLS))
+    feet[:, 0, :3] = (1.0, 0.0, 1.0)                   # both shoes measured horizontal, fully elongated
     for phi_deg in (0.0, 10.0, 30.0, 60.0, 90.0, 150.0):
         phi = np.radians(phi_deg)
         d = np.array([np.cos(phi), 0.0, np.sin(phi)])
@@ -118,22 +118,22 @@ def test_cost_grows_with_the_angle_in_every_ring_view():
         d = np.array([np.cos(h), np.sin(h), 0.0])
         return centre - HALF * d, centre + HALF * d
 
-    feet = np.zeros((2, 6, 3))
+    feet = np.zeros((2, 6, FA.N_FOOT_COLS))
     for c, cam in enumerate(rig.cameras):
         uv = cam.project(np.array(shoe(h0)))[0]
         a = (uv[1] - uv[0]) / np.linalg.norm(uv[1] - uv[0])
-        feet[0, c] = a[0], a[1], 1.0
+        feet[0, c, :3] = a[0], a[1], 1.0
     costs = [FA.foot_axis_cost(_points({0: shoe(h0 + np.radians(e))}), P, f, feet) for e in range(0, 181, 15)]
     assert costs[0] < 1e-12 and costs[-1] < 1e-9
     assert np.all(np.diff(costs[:7]) > 0) and np.all(np.diff(costs[6:]) < 0)
     assert 10.0 < costs[6] < 1e4 * HALF ** 2 / 3.0    # 90 deg off: below the side-view bound in every view
 
 
-def _cues(xy: dict, cov: dict, area: dict, conf: dict) -> CameraCues:
+def _cues(xy: dict, cov: dict, area: dict, conf: dict, leg_xy: np.ndarray | None = None) -> CameraCues:
     X, S, A, W = np.full((6, 2), np.nan), np.full((6, 2, 2), np.nan), np.zeros(6), np.zeros(6)
     for k in xy:
         X[k], S[k], A[k], W[k] = xy[k], cov[k], area[k], conf[k]
-    return CameraCues("c", 0, X, S, A, W)
+    return CameraCues("c", 0, X, S, A, W, leg_xy=leg_xy)
 
 
 def test_measured_axes_and_their_weights():
@@ -146,7 +146,8 @@ def test_measured_axes_and_their_weights():
     xy = {C_FOOT_L: (100.0, 200.0), C_FOOT_R: (160.0, 200.0), C_HEAD: (130.0, 50.0), C_TORSO: (130, 120)}
     conf = {k: 0.8 for k in xy}
     out = FA.foot_axes({"c": _cues(xy, cov, {k: 300.0 for k in xy}, conf)}, ["c", "absent"])
-    assert out.shape == (6, 2, 3)
+    assert out.shape == (6, 2, FA.N_FOOT_COLS)
+    assert np.all(out[..., 4] == 0)                                      # no legs sent: none measured
     np.testing.assert_allclose(out[C_FOOT_L, 0, :2], [np.cos(th), np.sin(th)], atol=1e-12)
     assert out[C_FOOT_L, 0, 2] == pytest.approx(0.8 * (1 - 9.0 / 100.0))
     assert out[C_FOOT_R, 0, 2] == 0.0                                    # round
@@ -159,8 +160,52 @@ def test_measured_axes_and_their_weights():
     # the two shoes within one major standard deviation each: one merged blob, no axis for either
     cov2 = {**cov, C_FOOT_R: long}
     xy2 = {**xy, C_FOOT_R: (110.0, 205.0)}
-    merged = FA.foot_axes({"c": _cues(xy2, cov2, {k: 300.0 for k in xy}, conf)}, ["c"])
-    assert np.all(merged[[C_FOOT_L, C_FOOT_R], 0, 2] == 0.0)
+    merged = FA.foot_axes({"c": _cues(xy2, cov2, {k: 300.0 for k in xy}, conf, np.full((2, 2), 50.0))}, ["c"])
+    assert np.all(merged[[C_FOOT_L, C_FOOT_R], 0, 2] == 0.0) and np.all(merged[[C_FOOT_L, C_FOOT_R], 0, 4] == 0.0)
+
+
+def test_measured_leg_attachments_along_the_axes():
+    """The attachment's offset along the measured axis (px, the axis' sign as in column 0-1) and
+    its weight, the cue's: a round blob still measures one; a missing attachment does not."""
+    th = np.radians(30.0)
+    a = np.array([np.cos(th), np.sin(th)])
+    Rm = np.array([[a[0], -a[1]], [a[1], a[0]]])
+    cov = {C_FOOT_L: Rm @ np.diag([100.0, 9.0]) @ Rm.T, C_FOOT_R: np.diag([25.0, 25.0])}
+    xy = {C_FOOT_L: (100.0, 200.0), C_FOOT_R: (160.0, 200.0)}
+    leg = np.array([np.array(xy[C_FOOT_L]) - 7.0 * a, [np.nan, np.nan]])
+    out = FA.foot_axes({"c": _cues(xy, cov, {k: 300.0 for k in xy}, {k: 0.8 for k in xy}, leg)}, ["c"])
+    assert out[C_FOOT_L, 0, 3] == pytest.approx(-7.0) and out[C_FOOT_L, 0, 4] == 0.8
+    assert out[C_FOOT_R, 0, 4] == 0.0
+    leg[1] = (160.0, 190.0)                                                # above a round blob
+    out = FA.foot_axes({"c": _cues(xy, cov, {k: 300.0 for k in xy}, {k: 0.8 for k in xy}, leg)}, ["c"])
+    axis = out[C_FOOT_R, 0, :2]
+    assert out[C_FOOT_R, 0, 4] == 0.8 and out[C_FOOT_R, 0, 3] == pytest.approx(axis @ [0.0, -10.0])
+
+
+def test_leg_cost_is_zero_at_the_ankle_and_the_capped_square_at_the_turned_ankle():
+    """A shoe facing +X in the fronto-parallel plane, its ankle 0.06 m behind and 0.08 m above
+    its centre; a camera looking along +Y sees the ankle 0.06 m to the heel side and the foot turned
+    round would put it 0.06 m to the toe side. The attachment measured at the ankle costs 0, at the
+    turned ankle's place min(0.12, cap)^2 (cm^2, the views' mean per foot), linearly in between;
+    the axis term's weight 0 leaves the legs' term alone."""
+    from mocap_rt.body.silhouette import _ANKLES, _P
+
+    cam = _fronto_camera()
+    P, f = rig_projection([cam])
+    c0 = np.array([0.1, 0.0, 0.3])
+    pts = _points({0: (c0 - [HALF, 0, 0], c0 + [HALF, 0, 0])})
+    pts[_ANKLES[0]] = c0 + [-0.06, 0.0, 0.08]
+    pts[_P["pelvis"]], pts[_P["neck"]] = c0 + [0.0, 0.0, 0.6], c0 + [0.0, 0.0, 1.1]   # the body's up: +Z
+    z = 3.0                                                            # the shoe's depth
+    feet = np.zeros((2, 1, FA.N_FOOT_COLS))
+    feet[0, 0] = (1.0, 0.0, 0.0, 0.0, 1.0)                             # axis +u, attachment t px
+    d_m = 0.12
+    full = 1e4 * min(d_m, FA.LEG_CAP_M) ** 2
+    for t_m, expected in ((-0.06, 0.0), (-0.1, 0.0), (0.0, 0.5 * full), (0.06, full), (0.09, full)):
+        feet[0, 0, 3] = t_m * 500.0 / z
+        assert FA.foot_axis_cost(pts, P, f, feet) == pytest.approx(expected, rel=1e-6, abs=1e-9)
+    feet[0, 0, 4] = 0.5
+    assert FA.foot_axis_cost(pts, P, f, feet) == pytest.approx(0.5 * full, rel=1e-6)
 
 
 def test_axes_follow_a_views_relabelled_feet():
@@ -250,5 +295,5 @@ def test_fit_refuses_axes_of_another_rig():
     model = body_model(BoneLengths(), "paper")
     rig = ring_rig(6, size=(320, 240))
     X = model.rest_positions()[list(CUE_JOINT_INDEX)]
-    with pytest.raises(ValueError, match=r"feet must be .*\(6, 6, 3\).*\(6, 4, 3\)"):
-        BodyFitter(model).fit(X, np.eye(3), None, SilhouetteTargets(rig.cameras), feet=np.zeros((6, 4, 3)))
+    with pytest.raises(ValueError, match=r"feet must be .*\(6, 6, 5\).*\(6, 4, 5\)"):
+        BodyFitter(model).fit(X, np.eye(3), None, SilhouetteTargets(rig.cameras), feet=np.zeros((6, 4, 5)))

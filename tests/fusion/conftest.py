@@ -56,3 +56,19 @@ def turn_in_place(tmp_path_factory):
     synthesize(clip, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=2.5, start_s=0.8, seed=3,
                motion_name=name)
     return out
+
+
+@pytest.fixture(scope="session")
+def hand_behind_head(tmp_path_factory):
+    """The procedural hand behind the head (seed 0), its first 0.6 s from 0.8 s as the suite plays
+    it: standing, the right hand behind the head, the left at the hip; 6-camera ring at 320x240,
+    30 fps, with truth and silhouettes. Without the legs on the shoes its cold start faced the
+    body the wrong way (heading 150-160 deg off, hands and feet exchanged)."""
+    from mocap_rt.studio.synth import make_rig, synthesize
+    from mocap_rt.studio.variants import load_motion
+
+    clip, name = load_motion("procedural:hand_behind_head:0")
+    out = tmp_path_factory.mktemp("hand_behind_head") / "rec"
+    synthesize(clip, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=0.6, start_s=0.8, seed=3,
+               motion_name=name)
+    return out
