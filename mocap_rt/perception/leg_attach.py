@@ -19,8 +19,8 @@ direction: the heel end").
 
 The ring is ``RING_SD`` standard deviations of the blob's own covariance (inside: the shoe;
 outside: the rest of the body); pixels nearer the other shoe's centre than ``OTHER_SD`` of
-this blob's minor standard deviation (the other leg) or within ``OTHER_ELLIPSE_SD`` of the
-other blob's own covariance (the other shoe, end to end with this one) are left out.
+this blob's minor standard deviation are left out (the other leg). Leaving out the other
+blob's whole ellipse too (3 sds of its covariance) was measured and not kept (docs/body.md).
 """
 
 from __future__ import annotations
@@ -33,8 +33,7 @@ import numpy as np
 from mocap_rt.perception.blob_kernels import ellipse_frame
 
 RING_SD = (2.2, 4.0)     # the ring around the shoe blob, in its standard deviations
-OTHER_SD = 3.0           # pixels within this many minor sds of the other shoe's centre are its leg's ...
-OTHER_ELLIPSE_SD = 3.0   # ... and within this many sds of its covariance are its shoe's
+OTHER_SD = 3.0           # pixels within this many minor sds of the other shoe's centre are its leg's
 MIN_RING_PX = 3          # fewer leg pixels in the ring: no measurement
 MIN_BLOB_AREA_PX = 20.0  # a smaller shoe blob has no axis to measure along (as body.foot_axis)
 
@@ -47,7 +46,7 @@ def leg_attachment(sil, x0, y0, xy, cov, area, min_area_px, out):  # pragma: no 
     (> 0 = person); xy (2, 2) image px, cov (2, 2, 2) px^2, area (2,) px of the two shoe
     blobs (left, right; NaN / 0 = not found). Writes out (2, 2): the centroid (image px) of
     the silhouette pixels in the ring ``RING_SD`` around each blob and on or above its centre
-    row, without those of the other blob and its leg (module doc); NaN where the blob is missing, smaller than
+    row, without those near the other blob (its leg, module doc); NaN where the blob is missing, smaller than
     ``min_area_px``, or fewer than ``MIN_RING_PX`` pixels are found.
     """
     h, w = sil.shape
@@ -62,11 +61,8 @@ def leg_attachment(sil, x0, y0, xy, cov, area, min_area_px, out):  # pragma: no 
         sd1, sd2, u, v = ellipse_frame(cov[k])
         ox = xy[1 - k, 0] - x0
         oy = xy[1 - k, 1] - y0
-        other = math.isfinite(ox) and math.isfinite(oy) and np.all(np.isfinite(cov[1 - k]))
+        other = math.isfinite(ox) and math.isfinite(oy)
         r_other2 = (OTHER_SD * sd2) ** 2
-        if other:        # the other blob's inverse covariance, for its Mahalanobis distance
-            det = max(cov[1 - k, 0, 0] * cov[1 - k, 1, 1] - cov[1 - k, 0, 1] * cov[1 - k, 1, 0], 1e-9)
-            i00, i01, i11 = cov[1 - k, 1, 1] / det, -cov[1 - k, 0, 1] / det, cov[1 - k, 0, 0] / det
         lo2 = RING_SD[0] * RING_SD[0]
         hi2 = RING_SD[1] * RING_SD[1]
         reach_x = RING_SD[1] * math.sqrt(cov[k, 0, 0])     # the ring's bounding box
@@ -89,12 +85,8 @@ def leg_attachment(sil, x0, y0, xy, cov, area, min_area_px, out):  # pragma: no 
                 d2 = ta * ta + tb * tb
                 if d2 < lo2 or d2 > hi2:
                     continue
-                if other:
-                    qx = x - ox
-                    qy = y - oy
-                    if (qx * qx + qy * qy <= r_other2
-                            or i00 * qx * qx + 2.0 * i01 * qx * qy + i11 * qy * qy <= OTHER_ELLIPSE_SD ** 2):
-                        continue
+                if other and (x - ox) ** 2 + (y - oy) ** 2 <= r_other2:
+                    continue
                 n += 1
                 sx += dx
                 sy += dy
