@@ -81,15 +81,18 @@ def trunk_up(ridge_cov: np.ndarray) -> np.ndarray:
 
 def head_score(xy: np.ndarray, area: float, ridge_xy: np.ndarray, up: np.ndarray) -> float:
     """How far a blob at ``xy`` (2,) px of ``area`` px^2 is from the head's place on the trunk,
-    in its own radii (0 = the median head place; inf = fails the head test)."""
-    r = np.sqrt(max(area, 0.0) / np.pi)
-    if not (np.isfinite(xy).all() and r > 0):
-        return np.inf
-    d = xy - ridge_xy
-    along = float(d @ up) / r
-    across = abs(float(d[0] * up[1] - d[1] * up[0])) / r
+    in its own radii (0 = the median head place; inf = fails the head test). Scalar arithmetic:
+    NumPy's per-call overhead on (2,) arrays was most of this function's time."""
+    r = math.sqrt(max(float(area), 0.0) / math.pi)
+    x, y = float(xy[0]), float(xy[1])
+    if not (math.isfinite(x) and math.isfinite(y) and r > 0):
+        return math.inf
+    dx, dy = x - float(ridge_xy[0]), y - float(ridge_xy[1])
+    ux, uy = float(up[0]), float(up[1])
+    along = (dx * ux + dy * uy) / r
+    across = abs(dx * uy - dy * ux) / r
     if not (HEAD_ALONG_RADII[0] <= along <= HEAD_ALONG_RADII[1] and across <= HEAD_ACROSS_RADII):
-        return np.inf
+        return math.inf
     return abs(along - TORSO_HEAD_RADII) + across
 
 
@@ -97,13 +100,15 @@ def torso_from_head(head_xy: np.ndarray, head_r: float, ridge_xy: np.ndarray,
                     k: float = TORSO_HEAD_RADII) -> np.ndarray | None:
     """Torso (2,) px on the line head -> ridge centroid, ``k * head_r`` from the head; None
     when the head, its radius or the direction is unknown."""
-    if not (np.isfinite(head_xy).all() and np.isfinite(head_r) and np.isfinite(ridge_xy).all()):
+    hx, hy, rx, ry = float(head_xy[0]), float(head_xy[1]), float(ridge_xy[0]), float(ridge_xy[1])
+    if not all(math.isfinite(v) for v in (hx, hy, head_r, rx, ry)):
         return None
-    d = ridge_xy - head_xy
-    n = float(np.hypot(*d))
+    dx, dy = rx - hx, ry - hy
+    n = float(np.hypot(dx, dy))                             # (not math.hypot: NumPy's last bit)
     if n < 1e-6:
         return None
-    return head_xy + k * head_r * d / n
+    kr = k * head_r
+    return np.array([hx + kr * dx / n, hy + kr * dy / n])    # NumPy's order: (k r d) / n
 
 
 def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_conf: float,
@@ -116,14 +121,14 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
     ridge_xy (2,) px, ridge_cov (2, 2) px^2 the ridge band (NaN = none); skin (h, w) colour map
     (uint8 {0, 1} or float, >= 0.5 = skin) of the person box whose top-left is ``origin`` (x, y) px.
     """
-    if not np.isfinite(ridge_xy).all():
+    if not (math.isfinite(ridge_xy[0]) and math.isfinite(ridge_xy[1])):
         return None
     up = trunk_up(ridge_cov)
-    found = np.isfinite(head_xy).all() and head_conf > 0
-    if found and np.isfinite(head_score(head_xy, head_area, ridge_xy, up)):
+    found = math.isfinite(head_xy[0]) and math.isfinite(head_xy[1]) and head_conf > 0
+    if found and math.isfinite(head_score(head_xy, head_area, ridge_xy, up)):
         state.suspect_frames = 0
         if head_conf >= 0.9:                 # a full, visible blob: its size scales the torso
-            state.radii.append(np.sqrt(head_area / np.pi))
+            state.radii.append(math.sqrt(head_area / math.pi))
         return None
     state.suspect_frames += 1
     if state.suspect_frames < HEAD_CHECK_FRAMES:
