@@ -27,8 +27,9 @@ The legs stand on the heels. Perception measures where each leg's silhouette mee
 blob (``perception.leg_attach``); a body turned round puts its ankles at the toe ends
 (``foot_axis``, the legs' term). While a track acquires its identity (the first
 ``acquire_frames``, when the facing is still open) the hypotheses are scored with that term,
-``legs_on_shoes_weight``; it speaks to the facing, not to which foot is which, so the hands
-and feet swaps are charged the current labelling's term and only the mirror its own. Past
+``legs_on_shoes_weight``; it speaks to the facing, not to which foot is which, so only the
+current labelling and the mirror are scored with it, and the hands and feet swaps keep their
+difference to the current labelling scored without it. Past
 acquisition it is left out: scored on every frame it put the kicks' raised legs and feet
 together at the wrong ends (docs/body.md, "Foot direction: the heel end").
 
@@ -136,32 +137,37 @@ def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray
     feet (6, C, 5): the shoe measurements labelled like ``cues`` (``foot_axis.foot_axes``),
     relabelled with each hypothesis (None: not scored). Only where the legs meet the shoes is
     scored, with ``legs_on_shoes_weight`` (the axes are the same for every labelling), and only
-    for the facing: the single swaps are charged the current labelling's term (module doc).
+    for the facing: the current labelling and the mirror are fitted with it, and the single
+    swaps keep their difference to the current labelling fitted without it (module doc).
     """
     feet = legs_only(feet, config.legs_on_shoes_weight)
-    costs = np.empty(1 + len(ALTERNATIVES))
-    legs = np.zeros(1 + len(ALTERNATIVES))
     up = cues[C_HEAD] - cues[C_TORSO]
     up = up / max(float(np.linalg.norm(up)), 1e-9)
     right = np.array([1.0, 0.0, 0.0]) if prev_axes is None else prev_axes[:, 0]
     right = right - up * (right @ up)
     right = right / max(float(np.linalg.norm(right)), 1e-9)
-    for h in range(1 + len(ALTERNATIVES)):
+
+    def cost(h: int, legs: bool) -> float:
         X = cues if h == 0 else swap_pairs(cues, h - 1)
-        F = feet if (h == 0 or feet is None) else swap_pairs(feet, h - 1)
-        r = -right if (h == 1 + ALTERNATIVES.index("mirror") and prev_axes is not None) else right
+        F = None if not legs else feet if h == 0 else swap_pairs(feet, h - 1)
+        r = -right if (h == 1 + _MIRROR and prev_axes is not None) else right
         axes = np.column_stack([r, np.cross(up, r), up])
         X = fill_missing(X, axes, rest_cues)
         if prev_axes is None:
-            res = fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=180.0,
-                             pan_step_deg=config.cold_step_deg, feet=F)
-        else:
-            res = fitter.fit(X, axes, None, targets, search_swivel=False,
-                             pan_search_deg=config.pan_search_deg, pan_refine=config.pan_refine, feet=F)
-        costs[h], legs[h] = res.cost, res.foot_axis_cm2 * fitter.config.foot_axis_weight
-    if feet is not None:              # the legs score the facing: the single swaps keep the current's
+            return fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=180.0,
+                              pan_step_deg=config.cold_step_deg, feet=F).cost
+        return fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=config.pan_search_deg,
+                          pan_refine=config.pan_refine, feet=F).cost
+
+    costs = np.array([cost(h, False) for h in range(1 + len(ALTERNATIVES))])
+    if feet is not None:
+        # the legs score the facing: the current labelling and the mirror with them; the single
+        # swaps keep their difference to the current one without them (each pan fitted to its
+        # own objective)
+        with_legs = cost(0, True)
         single = [1 + k for k in _SINGLE]
-        costs[single] += legs[0] - legs[single]
+        costs[single] += with_legs - costs[0]
+        costs[0], costs[1 + _MIRROR] = with_legs, cost(1 + _MIRROR, True)
     return costs
 
 
