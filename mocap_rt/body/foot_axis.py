@@ -47,8 +47,8 @@ meets it at the turned ankle's, and nothing from a view that cannot tell the two
 a foot seen end-on from above). Comparing the measurement with the body's own two predictions,
 not with one point, keeps the term free of the model's ankle geometry (its ankle sits lower
 and further back than a real one, docs/body.md). Per foot, averaged over the views that
-measure it, summed over the feet, cm^2. The tracker's pose fit scores only the axes (``axes_only``); the identity scores
-only the legs (``legs_only``, ``fusion.identity``).
+measure it, summed over the feet, cm^2. The tracker's pose fit scores only the axes
+(``axes_only``); the identity only the legs (``legs_only``, ``fusion.identity``).
 """
 
 from __future__ import annotations

@@ -29,9 +29,9 @@ blob (``perception.leg_attach``); a body turned round puts its ankles at the toe
 ``acquire_frames``, when the facing is still open) the hypotheses are scored with that term,
 ``legs_on_shoes_weight``; it speaks to the facing, not to which foot is which, so only the
 current labelling and the mirror are scored with it, and the hands and feet swaps keep their
-difference to the current labelling scored without it. Past
-acquisition it is left out: scored on every frame it put the kicks' raised legs and feet
-together at the wrong ends (docs/body.md, "Foot direction: the heel end").
+difference to the current labelling scored without it. Past acquisition it is left out
+(docs/body.md, "Foot direction: the heel end": scored on every frame it turned the kicks
+round, whose raised leg is not above its shoe).
 
 Legs cannot pass through each other (``crossed_legs_cm2``): drawn from the last pose's hips
 to the feet cues, the two legs' lines must stay a shin's radius apart. Where the current feet
@@ -85,7 +85,7 @@ class IdentityConfig:
     acquire_factor: float = 0.5     # ... switch on this fraction of the evidence
     crossed_legs_weight: float = 1.0  # per cm^2 of legs passing through each other (crossed_legs_cm2); 0 = off
     legs_on_shoes_weight: float = 1.0  # per cm^2 of legs meeting the shoes off the ankles (body.foot_axis), while
-                                       # acquiring and for the mirror only (module doc); 0 = off
+                                       # acquiring, for the facing only (module doc); 0 = off
 
 
 @dataclass
