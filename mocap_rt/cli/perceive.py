@@ -8,7 +8,9 @@ guides the next frame's perception. ``--open-loop`` runs each camera on its own 
 
 The npz holds ``camera_names`` (C,), ``cue_names`` (6,), ``frames`` (F,), ``cues_2d``
 (C, F, 6, 2) pixels (NaN = not found), ``confidence`` (C, F, 6), ``cov`` (C, F, 6, 2, 2),
-``bbox`` (C, F, 4), ``ms_per_frame`` (C, F) perception milliseconds and ``closed_loop`` ().
+``legs_2d`` (C, F, 2, 2) pixels where the legs meet the left and right shoe blobs (the heel
+ends, ``perception.leg_attach``; NaN = not measured), ``bbox`` (C, F, 4), ``ms_per_frame``
+(C, F) perception milliseconds and ``closed_loop`` ().
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
     cues = np.full((C, n, N_CUES, 2), np.nan)
     conf = np.zeros((C, n, N_CUES))
     cov = np.full((C, n, N_CUES, 2, 2), np.nan)
+    legs = np.full((C, n, 2, 2), np.nan)
     bbox = np.zeros((C, n, 4), np.int64)
     ms = np.full((C, n), np.nan)
     perceivers = {}
@@ -75,6 +78,8 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
             pred = None if predictions is None else predictions.get(name)
             cc = perceivers[name].process(img, int(frames[i]), pred)
             cues[c, i], conf[c, i], cov[c, i], bbox[c, i] = cc.xy, cc.confidence, cc.cov, cc.bbox
+            if cc.leg_xy is not None:
+                legs[c, i] = cc.leg_xy
             ms[c, i] = cc.timings_ms["total"]
             out[name] = cc
         return int(frames[i]), out
@@ -90,7 +95,7 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
         for i in tqdm(range(n), disable=not progress, unit="frame", desc="perceive"):
             frame_cues(i, None)
     return {"camera_names": np.array(cameras), "cue_names": np.array(CUE_NAMES), "frames": frames.copy(),
-            "cues_2d": cues, "confidence": conf, "cov": cov, "bbox": bbox, "ms_per_frame": ms,
+            "cues_2d": cues, "confidence": conf, "cov": cov, "legs_2d": legs, "bbox": bbox, "ms_per_frame": ms,
             "closed_loop": np.array(closed_loop)}
 
 

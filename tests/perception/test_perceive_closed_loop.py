@@ -48,3 +48,41 @@ def test_perceive_closed_loop_by_default_and_open_loop_on_request(dance_recordin
     assert np.isfinite(e_closed).mean() > 0.85 * np.isfinite(_errors(opened, truth)).mean()
     assert np.nanmedian(e_closed) < 1.5                       # px at 320x240
     assert np.nanpercentile(e_closed, 90) < 5.0
+
+
+
+def test_perceive_writes_where_the_legs_meet_the_shoes(data_dir, tmp_path):
+    """``legs_2d``: per camera, frame and foot, on the side of the shoe blob's centre (along its
+    axis) where the truth's ankle of the foot under the blob projects, in most views that tell
+    the two sides apart. Measured with 1 s clips, 320x240 / 640x480: a walk 90 / 97 %, the
+    Bandai kick 99 / 100 %, the modern dance (turned-out feet) 83 / 82 %."""
+    from mocap_rt.cli import main
+    from mocap_rt.io.recording import Recording
+    from mocap_rt.names import C_FOOT_L, C_FOOT_R
+    from mocap_rt.studio.synth import make_rig, synthesize
+
+    walk = tmp_path / "walk"
+    synthesize(data_dir / "bvh" / "cmu" / "cmu_02_01_walk.bvh", walk, rig=make_rig(size=(320, 240)),
+               seconds=0.5, start_s=1.0, truth_masks=False)
+    assert main(["perceive", str(walk), "--out", str(tmp_path / "c.npz"), "--no-progress"]) == 0
+    z = np.load(tmp_path / "c.npz")
+    with Recording(walk) as rec:
+        pts, names = np.asarray(rec.truth["points"]), list(rec.truth["point_names"])
+        cams = [rec.rig[n] for n in z["camera_names"]]
+    assert z["legs_2d"].shape == z["cues_2d"].shape[:2] + (2, 2)
+    agree = views = 0
+    for c, cam in enumerate(cams):
+        for i, f in enumerate(z["frames"]):
+            truth = {s: cam.project(pts[f, [names.index(f"ankle_{s}"), names.index(f"heel_{s}"),
+                                            names.index(f"toe_{s}")]])[0] for s in "lr"}
+            for k, cue in enumerate((C_FOOT_L, C_FOOT_R)):
+                leg, xy = z["legs_2d"][c, i, k], z["cues_2d"][c, i, cue]
+                if not (np.isfinite(leg).all() and np.isfinite(xy).all()):
+                    continue
+                ankle, heel, toe = min(truth.values(), key=lambda t: np.hypot(*((t[1] + t[2]) / 2 - xy)))
+                a = np.linalg.eigh(z["cov"][c, i, cue])[1][:, 1]
+                t_true = (ankle - (heel + toe) / 2) @ a
+                if abs(t_true) > 2.0:
+                    views += 1
+                    agree += np.sign((leg - xy) @ a) == np.sign(t_true)
+    assert views > 20 and agree / views > 0.85, (agree, views)
