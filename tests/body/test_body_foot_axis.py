@@ -10,23 +10,11 @@ from mocap_rt.geometry.camera import Camera
 from mocap_rt.geometry.rig import ring_rig
 from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO
 from mocap_rt.studio.body_map import POINT_NAMES
-from mocap_rt.studio.body_shape import SHOE, SHOE_RADIUS_M, BodyPrimitives
+from mocap_rt.studio.body_shape import SHOE_RADIUS_M
 from mocap_rt.studio.render import RenderConfig, StudioRenderer
+from studio_shoes import shoe_covariance
 
 HALF = 0.11   # the studio shoe's half-length (heel -> toe 0.22 m), silhouette.SHOE_HALF_LENGTH_M
-
-
-def shoe_covariance(renderer: StudioRenderer, camera: int, heel: np.ndarray, toe: np.ndarray):
-    """The pixel moments of one shoe capsule rendered alone by the studio: (cov (2, 2) px^2 with
-    the pixel extent, centre (2,), area px) or None when it covers no pixel."""
-    prims = BodyPrimitives(heel[None].astype(float), toe[None].astype(float), np.array([SHOE_RADIUS_M]),
-                           np.array([SHOE]), ("foot",), np.zeros(6, np.int64), np.zeros(1, np.int64))
-    m = renderer.render(camera, prims, 0).mask
-    ys, xs = np.nonzero(m)
-    if xs.size < 3:
-        return None
-    cov = np.cov(np.stack([xs, ys]), bias=True) + np.eye(2) / 12.0
-    return cov, np.array([xs.mean(), ys.mean()]), float(xs.size)
 
 
 def _angle_mod180(a: np.ndarray, b: np.ndarray) -> float:

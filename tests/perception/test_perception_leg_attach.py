@@ -128,8 +128,9 @@ def test_rendered_legs_meet_the_shoes_at_the_truths_ankles(data_dir):
     from mocap_rt.geometry.rig import ring_rig
     from mocap_rt.io.bvh import read_bvh
     from mocap_rt.studio.body_map import POINT_NAMES, body_motion
-    from mocap_rt.studio.body_shape import SHOE, SHOE_RADIUS_M, BodyPrimitives, body_primitives
+    from mocap_rt.studio.body_shape import body_primitives
     from mocap_rt.studio.render import RenderConfig, StudioRenderer
+    from studio_shoes import shoe_covariance
 
     rig = ring_rig(6, size=(320, 240))
     ren = StudioRenderer(rig, config=RenderConfig(noise_sigma_levels=0.0))
@@ -145,14 +146,9 @@ def test_rendered_legs_meet_the_shoes_at_the_truths_ankles(data_dir):
                 sil = ren.render(c, body_primitives(pts), fr).mask.astype(np.uint8)
                 xy, cov, area = np.full((2, 2), np.nan), np.full((2, 2, 2), np.nan), np.zeros(2)
                 for k, s in enumerate("lr"):
-                    prims = BodyPrimitives(pts[P[f"heel_{s}"]][None], pts[P[f"toe_{s}"]][None],
-                                           np.array([SHOE_RADIUS_M]), np.array([SHOE]), ("foot",),
-                                           np.zeros(6, np.int64), np.zeros(1, np.int64))
-                    ys, xs = np.nonzero(ren.render(c, prims, fr).mask)
-                    if xs.size >= MIN_BLOB_AREA_PX:
-                        xy[k] = xs.mean(), ys.mean()
-                        cov[k] = np.cov(np.stack([xs, ys]), bias=True) + np.eye(2) / 12.0
-                        area[k] = xs.size
+                    shoe = shoe_covariance(ren, c, pts[P[f"heel_{s}"]], pts[P[f"toe_{s}"]], fr)
+                    if shoe is not None and shoe[2] >= MIN_BLOB_AREA_PX:
+                        cov[k], xy[k], area[k] = shoe
                 out = np.empty((2, 2))
                 leg_attachment(sil, 0, 0, xy, cov, area, MIN_BLOB_AREA_PX, out)
                 for k, s in enumerate("lr"):
