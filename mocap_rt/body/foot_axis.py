@@ -62,9 +62,11 @@ from mocap_rt.body.silhouette import _ANKLES, _AUX, _P, _project
 from mocap_rt.cues import CameraCues
 from mocap_rt.names import C_FOOT_L, C_FOOT_R, N_CUES
 from mocap_rt.perception.blob_kernels import ellipse_frame
+from mocap_rt.perception.leg_attach import MIN_BLOB_AREA_PX
 
-# A blob with fewer pixels than this gives no axis (its moments are a few pixels' noise).
-MIN_AXIS_AREA_PX = 20.0
+# A blob with fewer pixels than this gives no axis (its moments are a few pixels' noise); the
+# same bound perception uses for the legs' attachments
+MIN_AXIS_AREA_PX = MIN_BLOB_AREA_PX
 FOOT_CUES = (C_FOOT_L, C_FOOT_R)   # the cues whose blobs are shoes
 N_FOOT_COLS = 5                    # foot_axes' columns: a_u, a_v, w, t, w_leg
 # The legs' term of one view is at most this squared (m): the ankle and the turned ankle's

@@ -35,7 +35,7 @@ from mocap_rt.perception.blob_kernels import ellipse_frame
 RING_SD = (2.2, 4.0)     # the ring around the shoe blob, in its standard deviations
 OTHER_SD = 3.0           # pixels within this many minor sds of the other shoe's centre are its leg's
 MIN_RING_PX = 3          # fewer leg pixels in the ring: no measurement
-MIN_BLOB_AREA_PX = 20.0  # a smaller shoe blob has no axis to measure along (as body.foot_axis)
+MIN_BLOB_AREA_PX = 20.0  # a smaller shoe blob has no axis to measure along (body.foot_axis uses it too)
 
 
 @numba.njit(cache=True, nogil=True)
