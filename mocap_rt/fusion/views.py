@@ -302,34 +302,43 @@ def fix_left_right(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, wei
             continue  # one of the two is tracked: too little to go on, keep perception's labels
         if cams.size < 2 or cams.size > 8:
             continue
-        best = None
-        for mask in range(1 << (cams.size - 1)):      # the first view's labels fixed: no mirror
-            flips = [bool(mask >> k & 1) for k in range(cams.size - 1)]
-            trial_uv = uv[:, [a, b]].copy()
-            trial_w = w[:, [a, b]].copy()
-            for c, f in zip(cams[1:], flips):
-                if f:
-                    trial_uv[c] = trial_uv[c, ::-1]
-                    trial_w[c] = trial_w[c, ::-1]
-            X = tri(trial_uv, np.where(np.isfinite(trial_uv).all(-1), trial_w, 0.0))
-            if not np.isfinite(X).all():
-                continue
-            p = proj.project(X)[0]
-            err = np.linalg.norm(p - trial_uv, axis=-1)[cams]
-            cost = float(np.nansum(np.minimum(err, LR_COST_CAP_PX)))
-            n_flip = sum(flips)
-            n_keep = max(n_flip, cams.size - n_flip)   # the mirror solution keeps the others
-            key = (round(cost, 6), -n_keep)
-            if best is None or key < best[0]:
-                best = (key, flips, n_flip > cams.size - n_flip)
-        if best is None:
+        swap = _label_search(tri, proj, uv, w, a, b, cams)
+        if swap is None:
             continue
-        _, flips, mirror = best
-        for c, f in zip(cams, [mirror] + [f != mirror for f in flips]):
-            if f:
-                _swap(uv, w, c, a, b)
-                n_fixed += 1
+        for c in np.flatnonzero(swap):
+            _swap(uv, w, c, a, b)
+            n_fixed += 1
     return uv, w, n_fixed
+
+
+def _label_search(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, w: np.ndarray, a: int, b: int,
+                  cams: np.ndarray) -> np.ndarray | None:
+    """Which of the views ``cams`` to swap the pair (a, b) in, with neither cue predicted: every
+    combination of swaps (the first view's labels fixed: each stands for itself and its mirror
+    image), triangulated and reprojected in one batch; the least capped reprojection error wins,
+    as the mirror image that keeps more views' labels. (C,) bool, or None if no combination
+    triangulates."""
+    C, n = uv.shape[0], cams.size
+    masks = np.arange(1 << (n - 1))
+    flip = np.zeros((masks.size, C), dtype=bool)                                 # (M, C)
+    flip[:, cams[1:]] = (masks[:, None] >> np.arange(n - 1)) & 1
+    pair_uv, pair_w = uv[:, [a, b]], w[:, [a, b]]
+    t_uv = np.where(flip[..., None, None], pair_uv[None, :, ::-1], pair_uv[None])   # (M, C, 2, 2)
+    t_w = np.where(flip[..., None], pair_w[None, :, ::-1], pair_w[None])
+    t_w = np.where(np.isfinite(t_uv).all(-1), t_w, 0.0)
+    M = masks.size
+    X = tri(t_uv.transpose(1, 0, 2, 3).reshape(C, 2 * M, 2), t_w.transpose(1, 0, 2).reshape(C, 2 * M))
+    ok = np.isfinite(X).reshape(M, 6).all(axis=1)
+    p = proj.project(np.where(np.isfinite(X), X, 0.0))[0].reshape(C, M, 2, 2).transpose(1, 0, 2, 3)
+    err = np.linalg.norm(p - t_uv, axis=-1)[:, cams]                               # (M, n, 2)
+    cost = np.where(ok, np.nansum(np.minimum(err, LR_COST_CAP_PX), axis=(1, 2)), np.inf)
+    if not ok.any():
+        return None
+    best = int(np.argmin(cost))
+    n_flip = int(flip[best].sum())
+    swap = np.zeros(C, dtype=bool)
+    swap[cams] = flip[best, cams] != (n_flip > n - n_flip)    # of the two mirror images, the one keeping more labels
+    return swap
 
 
 def _swap(uv: np.ndarray, w: np.ndarray, c: int, a: int, b: int) -> None:

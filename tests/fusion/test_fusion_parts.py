@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
 from mocap_rt.fusion.views import RigProjector, frontal_pair, head_on_trunk, predict_views, triangulate_cues
@@ -172,6 +174,75 @@ def test_fix_left_right_makes_the_views_agree(with_reference):
     fixed, w, n = fix_left_right(tri, proj, bad, np.ones((6, 6)), ref)
     np.testing.assert_allclose(fixed, uv)
     assert n == 3
+
+
+def _label_search_by_loop(tri, proj, uv, w, a, b, cams):
+    """The cold label search one combination at a time (the batched ``views._label_search``'s
+    oracle): (C,) bool views to swap, or None."""
+    from mocap_rt.fusion.views import LR_COST_CAP_PX
+
+    best = None
+    for mask in range(1 << (cams.size - 1)):
+        flips = [False] + [bool(mask >> k & 1) for k in range(cams.size - 1)]
+        t_uv, t_w = uv[:, [a, b]].copy(), w[:, [a, b]].copy()
+        for c, f in zip(cams, flips):
+            if f:
+                t_uv[c], t_w[c] = t_uv[c, ::-1], t_w[c, ::-1]
+        X = tri(t_uv, np.where(np.isfinite(t_uv).all(-1), t_w, 0.0))
+        if not np.isfinite(X).all():
+            continue
+        err = np.linalg.norm(proj.project(X)[0] - t_uv, axis=-1)[cams]
+        cost = float(np.nansum(np.minimum(err, LR_COST_CAP_PX)))
+        n_flip = sum(flips)
+        key = (round(cost, 6), -max(n_flip, cams.size - n_flip))
+        if best is None or key < best[0]:
+            best = (key, flips, n_flip > cams.size - n_flip)
+    if best is None:
+        return None
+    swap = np.zeros(len(uv), dtype=bool)
+    swap[cams] = [f != best[2] for f in best[1]]
+    return swap
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_wrong=st.integers(0, 6), n_missing=st.integers(0, 4),
+       noise_px=st.floats(0.0, 30.0))
+def test_the_batched_cold_label_search_chooses_what_one_combination_at_a_time_does(seed, n_wrong, n_missing,
+                                                                                     noise_px):
+    """Random views of the two hands (some labelled the other way round, some cues missing or
+    weighed 0, pixel noise up to the error cap): the batched search swaps the same views as
+    trying each combination in turn, and those views make the labels agree."""
+    from mocap_rt.fusion.views import _label_search
+
+    rng = np.random.default_rng(seed)
+    rig = ring_rig()
+    X, uv = _two_hands_uv(rig)
+    uv = uv + rng.normal(0.0, noise_px, uv.shape)
+    w = rng.uniform(0.2, 1.0, (6, 6))
+    wrong = rng.choice(6, n_wrong, replace=False)
+    uv[wrong, 1], uv[wrong, 2] = uv[wrong, 2].copy(), uv[wrong, 1].copy()
+    for c, k in zip(rng.integers(0, 6, n_missing), rng.integers(1, 3, n_missing)):
+        if rng.random() < 0.5:
+            uv[c, k] = np.nan
+        else:
+            w[c, k] = 0.0
+    tri, proj = RayTriangulator(rig.cameras), RigProjector(rig.cameras)
+    seen = np.isfinite(uv[:, [1, 2]]).all(-1) & (w[:, [1, 2]] > 0)
+    cams = np.flatnonzero(seen.any(axis=1))
+    if cams.size < 2:
+        return
+    want = _label_search_by_loop(tri, proj, uv, w, 1, 2, cams)
+    got = _label_search(tri, proj, uv, w, 1, 2, cams)
+    assert (got is None) == (want is None)
+    if want is not None:
+        np.testing.assert_array_equal(got, want)
+    if want is not None and noise_px < 2.0 and n_missing == 0:
+        # the views labelled the other way round, or, of the two mirror images, the one that
+        # keeps more views' labels (either when half are wrong)
+        swapped, right = set(np.flatnonzero(got)), set(range(6)) - set(wrong)
+        assert swapped in (set(wrong), right)
+        if n_wrong != 3:
+            assert swapped == (set(wrong) if n_wrong < 3 else right)
 
 
 def test_kalman_recovers_after_one_bad_measurement():
