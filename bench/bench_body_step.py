@@ -50,7 +50,7 @@ def time_clip(rec_dir, frames: int | None, silhouettes: bool) -> dict[str, np.nd
             t0 = time.perf_counter()
             r = tracker.fit_frame(f, cues[f])        # = tracker.step, timed in its two halves
             fit.append((time.perf_counter() - t0) * 1e3)
-            tracker.identify_frame(r.timings_ms)
+            tracker.identify_frame(r)
             steps.append((time.perf_counter() - t0) * 1e3)
             cpu.append((time.thread_time() - c0) * 1e3)
             for k, v in r.timings_ms.items():

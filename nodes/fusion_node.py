@@ -131,7 +131,7 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
         t1 = time.perf_counter()
         predictions = None
         if not pose_first:
-            tracker.identify_frame(result.timings_ms)
+            result = tracker.identify_frame(result)     # a switch shows in this very pose
             predictions = tracker.predict(pf.frame + 1)
     except Exception as exc:  # a fusion failure on one frame must not end the service
         log.exception("fusion: frame %d failed: %s", pf.frame, exc)
@@ -156,7 +156,7 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
     if predictions is None:
         t4 = t_id = time.perf_counter()
         try:
-            tracker.identify_frame()
+            tracker.identify_frame(result)
             t_id = time.perf_counter()
             predictions = tracker.predict(pf.frame + 1)
         except Exception as exc:  # noqa: BLE001 - as above: count, log, carry on

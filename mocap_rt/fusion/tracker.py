@@ -15,11 +15,10 @@
 5. identify: the frame's labelling against its alternatives (hands / feet exchanged, the
    body mirrored), switched on clear evidence (``fusion.identity``) for the frames that
    follow. Stages 1-4 are ``fit_frame``, stage 5 ``identify_frame``: the service publishes
-   the pose between the two, so the identity (a third of a frame's work) is not in its
-   latency; a switch shows from the next frame on (it takes several frames of evidence).
-   Only while a track acquires its identity (its first ``IdentityConfig.acquire_frames``)
-   does ``fit_frame`` score the hypotheses before the fit, so that a cold start's first
-   poses have the acquired labels.
+   the pose between the two, so the identity (a third of a frame's work, and all of a cold
+   start's search round the circle) is not in its latency; a switch shows there from the next
+   frame on (it takes several frames of evidence). ``step`` (offline) returns the frame that
+   switched refitted with its new labels.
 
 ``predict(frame)`` extrapolates the filter to a coming frame and gives every camera the
 predicted 2D cues with Z-buffer visibility and blob radius (A.4).
@@ -34,7 +33,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -283,9 +282,7 @@ class BodyTracker:
     # ------------------------------------------------------------------ API
     def step(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:
         """Fuse one frame (see the module doc): ``fit_frame`` then ``identify_frame``."""
-        result = self.fit_frame(frame, cues)
-        self.identify_frame(result.timings_ms)
-        return result
+        return self.identify_frame(self.fit_frame(frame, cues))
 
     def fit_frame(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:
         """Stages 1-4 of one frame (module doc): the frame's pose, with the labels the earlier
@@ -315,14 +312,6 @@ class BodyTracker:
         timings["triangulate"] = (t_id - ts) * 1e3
         right_before = self._right          # the heading reference this frame's fit starts from
         scored = self._identity_input(X, valid, pred, targets, feet)
-        if scored is not None and self.identity.frames < self.config.identity.acquire_frames:
-            # a track's first frames: its identity is being acquired, and a cold start's first
-            # pose should not wait a frame for it, so the hypotheses are scored before the fit
-            k = self._score_identity(*scored)
-            if k >= 0:
-                X = swap_pairs(X, k)
-                feet = None if feet is None else swap_pairs(feet, k)
-            scored = None
         t1 = time.perf_counter()
         timings["identify"] = (t1 - t_id) * 1e3
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
@@ -364,7 +353,8 @@ class BodyTracker:
                         feet: np.ndarray | None) -> tuple | None:
         """What the identity scores, taken before the frame changes the state: the cues (6, 3)
         (measured, else the filter's prediction ``pred`` (6, 3)), the previous frame's body axes,
-        the silhouettes and the shoe measurements ``feet``; None when there is nothing to score.
+        the silhouettes, the shoe measurements ``feet`` and the previous pose's hips; None when
+        there is nothing to score.
         A body that (re)starts acquires afresh."""
         if not self.filter.alive[[C_HEAD, C_TORSO]].all():
             self.identity.reset()        # the body (re)starts: acquire afresh, heading unknown
@@ -375,14 +365,16 @@ class BodyTracker:
         cues = np.where(valid[:, None], X, pred)
         if not np.isfinite(cues[[C_HEAD, C_TORSO]]).all():
             return None
-        return cues, self._axes, targets, feet
+        return cues, self._axes, targets, feet, self._hips
 
-    def identify_frame(self, timings_ms: dict | None = None) -> None:
-        """Stage 5 of the frame ``fit_frame`` just fitted (after the first ``acquire_frames`` of
-        a track, which ``fit_frame`` identifies before the fit): its labelling against the
-        alternatives (``fusion.identity``); on clear evidence the filter's tracks, the heading
-        and the limb swivels switch, and the next frame (its prediction first) has the new
-        labels. ``timings_ms``: the frame's timings, given the ``identify`` stage (ms)."""
+    def identify_frame(self, result: FusionResult) -> FusionResult:
+        """Stage 5 of the frame ``fit_frame`` just fitted (``result``, whose timings it adds its
+        ``identify`` stage to): its labelling against the alternatives (``fusion.identity``). On
+        clear evidence the filter's tracks, the heading and the limb swivels switch, and the
+        frame is refitted with the new labels, so the next frame (its prediction first) starts
+        from the state it would have had if this frame had been labelled so. Returns ``result``,
+        or on a switch the frame refitted with the new labels: what ``step`` (offline) keeps; the
+        service has published ``result`` already and shows the switch from the next frame."""
         t0 = time.perf_counter()
         pending, self._pending = self._pending, None
         if pending is not None:
@@ -390,21 +382,27 @@ class BodyTracker:
             k = self._score_identity(*scored)
             X = X if k < 0 else swap_pairs(X, k)
             if k >= 0 and np.isfinite(cues_ik[[C_HEAD, C_TORSO]]).all():
-                # refit the frame with the new labels from the heading reference its fit started
-                # from (turned for a mirror): the next frame starts from the state it would have
-                # had if this frame had been labelled so
-                if right_before is not None:
-                    self._right = -right_before if ALTERNATIVES[k] == "mirror" else right_before
-                axes = self.solve_pose(swap_pairs(cues_ik, k), self._vel, scored[2],
-                                       None if feet is None else swap_pairs(feet, k))[3]
+                # refit from the heading reference the frame's fit started from (turned for a
+                # mirror; none at a cold start)
+                self._right = (None if right_before is None else
+                               -right_before if ALTERNATIVES[k] == "mirror" else right_before)
+                cues_ik = swap_pairs(cues_ik, k)
+                root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, scored[2],
+                                                             None if feet is None else swap_pairs(feet, k))
+                self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
+                result = replace(result, cues_3d=swap_pairs(result.cues_3d, k),
+                                 cue_valid=swap_pairs(result.cue_valid, k), joints=joints,
+                                 bvh_frame=self.bvh_row(root, angles), root_pos=root, angles=angles,
+                                 pan_rad=pan_angle(axes), cues_ik=cues_ik, axes=axes,
+                                 joint_valid=joint_validity(np.isfinite(cues_ik).all(axis=1)))
             self._maybe_calibrate(X, axes)      # the bone-length sample, with the labels settled
-        if timings_ms is not None:
-            ms = (time.perf_counter() - t0) * 1e3
-            timings_ms["identify"] = timings_ms.get("identify", 0.0) + ms
-            timings_ms["total"] = timings_ms.get("total", 0.0) + ms
+        ms = (time.perf_counter() - t0) * 1e3
+        result.timings_ms["identify"] = result.timings_ms.get("identify", 0.0) + ms
+        result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + ms
+        return result
 
     def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None,
-                        targets: SilhouetteTargets | None, feet: np.ndarray | None) -> int:
+                        targets: SilhouetteTargets | None, feet: np.ndarray | None, hips: np.ndarray | None) -> int:
         """Score the hypotheses on ``cues`` (``_identity_input``); on a switch relabel the
         filter's tracks, turn the heading for a mirror and reset the limb swivels. Returns the
         alternative switched to (index into ALTERNATIVES) or -1."""
@@ -415,7 +413,7 @@ class BodyTracker:
         if targets is None or targets.n_views == 0:
             costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
         # legs that pass through each other: a credit to the feet alternative (identity module doc)
-        costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(self._hips, cues)
+        costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(hips, cues)
         k = decide(self.identity, costs, cfg)
         if k < 0:
             return k

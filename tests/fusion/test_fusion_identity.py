@@ -89,19 +89,20 @@ def test_the_mirror_needs_evidence_for_both_pairs():
 
 
 def _truth_run(rec_dir, swap_feet: bool, swap_tracks_at: int | None = None, swap_hands: bool = False,
-               noise_seed: int = 0):
+               noise_seed: int = 0, live: bool = False):
     """Truth 2D cues (+1 px noise) and truth silhouettes through BodyTracker, optionally with
     the feet (``swap_hands``: the hands) labelled the wrong way round in every view, or with the
     tracker's own foot tracks exchanged before frame ``swap_tracks_at``. Returns (joints (F, 20,
     3), truth joints, foot cue errors (F, 2) m, identity switches made up to each frame (F,),
-    hand cue errors (F, 2) m)."""
+    hand cue errors (F, 2) m). The foot errors are those of ``step`` (offline), or with ``live``
+    of the pose the service publishes (``fit_frame``, before the frame's identity)."""
     rec = Recording(rec_dir)
     truth = rec.truth
     names = list(rec.rig.names)
     widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
     tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
     rng = np.random.default_rng(noise_seed)
-    joints, err, switches, hand_err = [], [], [], []
+    joints, err, switches, hand_err, live_err = [], [], [], [], []
     swaps = [p for p, on in (((FL, FR), swap_feet), ((HL, HR), swap_hands)) if on]
     for f in range(rec.n_frames):
         cues = truth_camera_cues(truth, names, f, f, 1.0, rng, widths)
@@ -111,12 +112,16 @@ def _truth_run(rec_dir, swap_feet: bool, swap_tracks_at: int | None = None, swap
                     arr[[a, b]] = arr[[b, a]]
         if f == swap_tracks_at:
             tracker.filter.swap(FL, FR)
-        r = tracker.step(f, cues)
+        published = tracker.fit_frame(f, cues)      # what the service publishes ...
+        live_err.append(np.linalg.norm(published.cues_ik[[FL, FR]] - truth["cues"][f][[FL, FR]], axis=1))
+        r = tracker.identify_frame(published)       # ... and what step (offline) keeps
         joints.append(r.joints)
         err.append(np.linalg.norm(r.cues_ik[[FL, FR]] - truth["cues"][f][[FL, FR]], axis=1))
         switches.append(tracker.identity.switches)
         hand_err.append(np.linalg.norm(r.cues_ik[[HL, HR]] - truth["cues"][f][[HL, HR]], axis=1))
     rec.close()
+    if live:
+        err = live_err
     return np.array(joints), np.asarray(truth["joints"]), np.array(err), np.array(switches), np.array(hand_err)
 
 
@@ -133,15 +138,19 @@ def test_feet_tracks_exchanged_mid_track_are_put_right_from_the_next_frame(backw
     """After the identity was acquired the feet tracks are exchanged (what a crossing that
     perception followed leaves): every view then agrees with the wrong prediction, and only
     the hypotheses can see it. The switch is decided after the frame's pose went out
-    (``identify_frame``): that frame still has the wrong feet, the next ones the right."""
+    (``identify_frame``): the pose the service published of that frame still has the wrong feet,
+    the next ones the right; ``step`` gives that frame refitted with the right feet."""
     at = ACQUIRE_FRAMES + 15
-    _, _, err, switches, _ = _truth_run(backwards_walk_3s, swap_feet=False, swap_tracks_at=at)
+    _, _, err, switches, _ = _truth_run(backwards_walk_3s, swap_feet=False, swap_tracks_at=at, live=True)
     assert np.percentile(err[ACQUIRE_FRAMES:at], 95) < 0.03     # right before ...
     assert np.median(err[at:at + 2]) > 0.1                       # ... wrong at once ...
     s = at + int(np.argmax(switches[at:] > switches[at - 1]))    # ... until the frame that switched
     assert switches[s] > switches[at - 1], "never switched back"
-    assert err[s].min() > 0.1                                    # its own pose: still wrong
+    assert err[s].min() > 0.1                                    # its published pose: still wrong
     assert np.percentile(err[s + 1:], 95) < 0.03                 # from the next frame: right for good
+    _, _, err_step, switches_step, _ = _truth_run(backwards_walk_3s, swap_feet=False, swap_tracks_at=at)
+    assert np.array_equal(switches_step, switches)               # the same run ...
+    assert err_step[s].max() < 0.03                              # ... whose switching frame step refits
 
 
 @pytest.mark.parametrize("noise_seed", range(6))

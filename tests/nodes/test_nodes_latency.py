@@ -52,7 +52,7 @@ class _Pub:
 
 
 class _Tracker:
-    """Records the calls; fit_frame -> a pose-like result, identify_frame -> nothing,
+    """Records the calls; fit_frame -> a pose-like result, identify_frame -> the same result,
     predict -> one prediction per camera."""
 
     def __init__(self, cams, calls: list) -> None:
@@ -64,8 +64,9 @@ class _Tracker:
         return SimpleNamespace(cues_3d=np.zeros((6, 3)), cue_valid=np.ones(6, bool), joints=np.zeros((20, 3)),
                                bvh_frame=np.zeros(10), timings_ms={"ik": 0.5})
 
-    def identify_frame(self, timings_ms=None):
+    def identify_frame(self, result):
         self.calls.append(("identify_frame", None))
+        return result
 
     def predict(self, frame):
         self.calls.append(("predict", frame))
