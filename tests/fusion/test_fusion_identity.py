@@ -153,6 +153,38 @@ def test_feet_tracks_exchanged_mid_track_are_put_right_from_the_next_frame(backw
     assert err_step[s].max() < 0.03                              # ... whose switching frame step refits
 
 
+def test_a_cold_start_is_identified_after_its_pose(kick_reversed):
+    """A cold start whose hands every view labels the wrong way round: ``fit_frame`` (the pose the
+    service publishes) does not score the identity, even while the track acquires it; the frame's
+    ``identify_frame`` switches the hands and returns the frame refitted with them, and the next
+    frame's pose has them from the start."""
+    rec = Recording(kick_reversed)
+    truth = rec.truth
+    names = list(rec.rig.names)
+    widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
+    tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
+    rng = np.random.default_rng(0)
+
+    def cues(f):
+        out = truth_camera_cues(truth, names, f, f, 1.0, rng, widths)
+        for cc in out.values():
+            for arr in (cc.xy, cc.cov, cc.area, cc.confidence):
+                arr[[HL, HR]] = arr[[HR, HL]]
+        return out
+
+    def hand_err(r, f):
+        return np.linalg.norm(r.cues_ik[[HL, HR]] - truth["cues"][f][[HL, HR]], axis=1)
+
+    published = tracker.fit_frame(0, cues(0))
+    assert tracker.identity.frames == 0 and tracker.identity.switches == 0
+    assert hand_err(published, 0).min() > 0.3                    # published with the views' labels
+    kept = tracker.identify_frame(published)
+    assert tracker.identity.frames == 1 and tracker.identity.switches == 1
+    assert hand_err(kept, 0).max() < 0.05 and hand_err(published, 0).min() > 0.3
+    assert hand_err(tracker.fit_frame(1, cues(1)), 1).max() < 0.05
+    rec.close()
+
+
 @pytest.mark.parametrize("noise_seed", range(6))
 def test_cold_start_with_the_hands_wrong_keeps_the_right_feet(kick_reversed, noise_seed):
     """A cold start whose hands every view labels the wrong way round, the feet right: the
