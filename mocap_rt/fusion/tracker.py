@@ -342,7 +342,7 @@ class BodyTracker:
         row = (self.bvh_row(*self._last_pose) if self._last_pose is not None
                else bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
         self._update_pair(cues_ik)
-        self._pending = None if scored is None else (scored, cues_ik, feet, right_before, calib_sample)
+        self._pending = None if scored is None else (scored, cues_ik, right_before, calib_sample)
         timings["total"] = (time.perf_counter() - t0) * 1e3
         cams_used = tuple(self._names[c] for c in range(len(self._names)) if used[c].any())
         pair = tuple(self._names[i] for i in self._pair) if (self.config.views == "pair" and self._pair) else ()
@@ -378,7 +378,8 @@ class BodyTracker:
         t0 = time.perf_counter()
         pending, self._pending = self._pending, None
         if pending is not None:
-            scored, cues_ik, feet, right_before, (X, axes) = pending
+            scored, cues_ik, right_before, (X, axes) = pending
+            _, _, targets, feet, _ = scored
             k = self._score_identity(*scored)
             X = X if k < 0 else swap_pairs(X, k)
             if k >= 0 and np.isfinite(cues_ik[[C_HEAD, C_TORSO]]).all():
@@ -387,7 +388,7 @@ class BodyTracker:
                 self._right = (None if right_before is None else
                                -right_before if ALTERNATIVES[k] == "mirror" else right_before)
                 cues_ik = swap_pairs(cues_ik, k)
-                root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, scored[2],
+                root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets,
                                                              None if feet is None else swap_pairs(feet, k))
                 self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
                 result = replace(result, cues_3d=swap_pairs(result.cues_3d, k),
