@@ -320,13 +320,13 @@ def _label_search(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, w: n
     triangulates."""
     C, n = uv.shape[0], cams.size
     masks = np.arange(1 << (n - 1))
-    flip = np.zeros((masks.size, C), dtype=bool)                                 # (M, C)
+    M = masks.size
+    flip = np.zeros((M, C), dtype=bool)                                          # (M, C)
     flip[:, cams[1:]] = (masks[:, None] >> np.arange(n - 1)) & 1
     pair_uv, pair_w = uv[:, [a, b]], w[:, [a, b]]
     t_uv = np.where(flip[..., None, None], pair_uv[None, :, ::-1], pair_uv[None])   # (M, C, 2, 2)
     t_w = np.where(flip[..., None], pair_w[None, :, ::-1], pair_w[None])
     t_w = np.where(np.isfinite(t_uv).all(-1), t_w, 0.0)
-    M = masks.size
     X = tri(t_uv.transpose(1, 0, 2, 3).reshape(C, 2 * M, 2), t_w.transpose(1, 0, 2).reshape(C, 2 * M))
     ok = np.isfinite(X).reshape(M, 6).all(axis=1)
     p = proj.project(np.where(np.isfinite(X), X, 0.0))[0].reshape(C, M, 2, 2).transpose(1, 0, 2, 3)
