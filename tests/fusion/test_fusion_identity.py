@@ -88,6 +88,17 @@ def test_the_mirror_needs_evidence_for_both_pairs():
     assert decide(state, np.array([110.1, 236.8, 119.9, 67.1]), cfg) == mirror
 
 
+def _truth_cues(truth, names, widths, f, rng, swaps) -> dict:
+    """The truth's 2D cues of frame f (+1 px noise, with silhouettes) per camera, each pair in
+    ``swaps`` labelled the wrong way round in every view."""
+    cues = truth_camera_cues(truth, names, f, f, 1.0, rng, widths)
+    for a, b in swaps:
+        for cc in cues.values():
+            for arr in (cc.xy, cc.cov, cc.area, cc.confidence):
+                arr[[a, b]] = arr[[b, a]]
+    return cues
+
+
 def _truth_run(rec_dir, swap_feet: bool, swap_tracks_at: int | None = None, swap_hands: bool = False,
                noise_seed: int = 0, live: bool = False):
     """Truth 2D cues (+1 px noise) and truth silhouettes through BodyTracker, optionally with
@@ -105,11 +116,7 @@ def _truth_run(rec_dir, swap_feet: bool, swap_tracks_at: int | None = None, swap
     joints, err, switches, hand_err, live_err = [], [], [], [], []
     swaps = [p for p, on in (((FL, FR), swap_feet), ((HL, HR), swap_hands)) if on]
     for f in range(rec.n_frames):
-        cues = truth_camera_cues(truth, names, f, f, 1.0, rng, widths)
-        for a, b in swaps:
-            for cc in cues.values():
-                for arr in (cc.xy, cc.cov, cc.area, cc.confidence):
-                    arr[[a, b]] = arr[[b, a]]
+        cues = _truth_cues(truth, names, widths, f, rng, swaps)
         if f == swap_tracks_at:
             tracker.filter.swap(FL, FR)
         published = tracker.fit_frame(f, cues)      # what the service publishes ...
@@ -166,11 +173,7 @@ def test_a_cold_start_is_identified_after_its_pose(kick_reversed):
     rng = np.random.default_rng(0)
 
     def cues(f):
-        out = truth_camera_cues(truth, names, f, f, 1.0, rng, widths)
-        for cc in out.values():
-            for arr in (cc.xy, cc.cov, cc.area, cc.confidence):
-                arr[[HL, HR]] = arr[[HR, HL]]
-        return out
+        return _truth_cues(truth, names, widths, f, rng, [(HL, HR)])
 
     def hand_err(r, f):
         return np.linalg.norm(r.cues_ik[[HL, HR]] - truth["cues"][f][[HL, HR]], axis=1)
