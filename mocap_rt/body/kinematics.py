@@ -108,6 +108,15 @@ def angles_from_frames(model: BodyModel, rotations: np.ndarray) -> np.ndarray:
     return out
 
 
+def other_xyz_name(angles: np.ndarray) -> np.ndarray:
+    """(..., 3) X-Y-Z angles -> the rotation's other name, (X + pi, pi - Y, Z + pi) wrapped
+    into (-pi, pi]: ``euler_xyz_from_matrix`` gives |Y| <= pi/2; an arm raised sideways
+    above the shoulder has its angles within the limits only under this one."""
+    a = np.asarray(angles, dtype=np.float64)
+    wrap = lambda v: np.pi - (np.pi - v) % (2 * np.pi)  # noqa: E731
+    return np.stack([wrap(a[..., 0] + np.pi), wrap(np.pi - a[..., 1]), wrap(a[..., 2] + np.pi)], axis=-1)
+
+
 def quaternions_from_angles(angles: np.ndarray) -> np.ndarray:
     """(J, 3) X-Y-Z angles (radians) -> (J, 4) unit quaternions (x, y, z, w), scipy order."""
     return Rotation.from_euler("XYZ", np.asarray(angles, dtype=np.float64)).as_quat()

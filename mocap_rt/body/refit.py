@@ -24,7 +24,7 @@ import numpy as np
 
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.ik_problem import IkResult
-from mocap_rt.body.kinematics import angles_from_frames
+from mocap_rt.body.kinematics import angles_from_frames, other_xyz_name
 from mocap_rt.body.skeleton import END_EFFECTORS, J, N_JOINTS, BodyModel, BoneLengths
 
 # Chains walked from each end effector: (joint reached, segment length attribute).
@@ -146,6 +146,11 @@ def pose_from_refit(model: BodyModel, P: np.ndarray, effectors: dict[str, np.nda
     """
     R = frames_from_joints(model, P)
     raw = angles_from_frames(model, R)
+    alt = other_xyz_name(raw)                 # a rotation's two names: the one nearer the limits
+    lo, hi = model.limits[..., 0], model.limits[..., 1]
+    excess = lambda a: (np.maximum(0.0, lo - a) + np.maximum(0.0, a - hi)).sum(axis=1)  # noqa: E731
+    use = model.dof.all(axis=1) & (excess(alt) < excess(raw))
+    raw[use] = alt[use]
     angles = model.clamp(raw)
     angles[0] = raw[0]                      # the root's rotation is free
     root = P[J["pelvis"]]

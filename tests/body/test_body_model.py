@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from mocap_rt.body.estimate import bone_lengths_from_joints, estimate_bone_lengths
 from mocap_rt.body.kinematics import (angles_from_frames, angles_from_quaternions, euler_xyz_from_matrix,
-                                      euler_xyz_matrix, forward_kinematics, quaternions_from_angles)
+                                      euler_xyz_matrix, forward_kinematics, other_xyz_name,
+                                      quaternions_from_angles)
 from mocap_rt.body.skeleton import (END_EFFECTORS, J, N_JOINTS, BoneLengths, body_model, read_bone_lengths,
                                     write_bone_lengths)
 from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES
@@ -24,6 +25,15 @@ def test_euler_matrix_matches_scipy_and_round_trips(ax, ay, az):
     back = euler_xyz_from_matrix(R)
     np.testing.assert_allclose(euler_xyz_matrix(*back), R, atol=1e-9)
     np.testing.assert_allclose(back, [ax, ay, az], atol=1e-7)
+
+
+@settings(max_examples=60, deadline=None)
+@given(angle, angle, angle)
+def test_other_xyz_name_is_the_same_rotation(ax, ay, az):
+    other = other_xyz_name(np.array([ax, ay, az]))
+    np.testing.assert_allclose(euler_xyz_matrix(*other), euler_xyz_matrix(ax, ay, az), atol=1e-12)
+    assert np.all(np.abs(other) <= np.pi)
+    np.testing.assert_allclose(np.cos(other_xyz_name(other) - [ax, ay, az]), 1.0, atol=1e-12)  # its own inverse
 
 
 def random_angles(model, rng, frac=(0.0, 1.0)):

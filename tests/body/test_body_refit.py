@@ -7,7 +7,7 @@ import pytest
 
 from mocap_rt.body.annotations import pose_from_annotations, read_annotations
 from mocap_rt.body.kinematics import forward_kinematics
-from mocap_rt.body.refit import SEGMENTS, refit_skeleton
+from mocap_rt.body.refit import SEGMENTS, pose_from_refit, refit_skeleton
 from mocap_rt.body.skeleton import END_EFFECTORS, J, BoneLengths, body_model, write_bone_lengths
 from mocap_rt.cli import main as cli_main
 from mocap_rt.geometry.rig import ring_rig, write_rig
@@ -55,6 +55,27 @@ def test_refit_restores_bone_lengths_from_noisy_measurements():
     spine = R[J["neck"]] - R[J["pelvis"]]
     assert abs(spine @ (sr - sl)) < 1e-9                                              # perpendicular
     assert np.abs(R - P).max() < 0.15
+
+
+def test_arms_raised_sideways_keep_their_pose():
+    """Arms abducted above the shoulder (100-170 deg) have, read back from their frames,
+    an X-Y-Z name with X and Z near 180 deg, outside the limits; the refit's start takes
+    the other name of the same rotation, so clamping does not fold the arms down and the
+    CCD starts at the truth."""
+    rng = np.random.default_rng(4)
+    L = BoneLengths()
+    m = body_model(L)
+    for _ in range(5):
+        a = np.zeros((20, 3))
+        for s, sx in (("l", -1), ("r", 1)):
+            a[J[f"shoulder_{s}"]] = np.radians([rng.uniform(-10, 10), sx * rng.uniform(100, 170),
+                                                sx * rng.uniform(-20, 20)])
+            a[J[f"elbow_{s}"], 0] = rng.uniform(0.1, 0.8)
+        a[0] = [0.0, 0.0, rng.uniform(-np.pi, np.pi)]
+        P = forward_kinematics(m, np.array([0.0, 0.0, 1.0]), a)[0]
+        root, res = pose_from_refit(m, P, {n: P[J[n]] for n in END_EFFECTORS})
+        got = forward_kinematics(m, root, res.angles)[0]
+        assert np.abs(got - P).max() < 0.01
 
 
 def write_annotations(tmp_path, P, L, noise_px=0.0, seed=0):
