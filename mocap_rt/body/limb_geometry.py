@@ -2,7 +2,8 @@
 
 ``_two_link`` places the middle joint of a two-link limb (A.5: direction + clamped
 distance, bent towards a pole), ``_frame`` builds a bone frame, ``joint_violation`` measures
-how far a joint's angles leave the range-of-motion table (the fit's measure), and
+how far a joint's angles leave the range-of-motion table (the fit's measure; the shoulder's
+as swing and twist), and
 ``_arm_pole`` re-bends an arm that the fixed elbow pole puts out of range
 (``AnalyticConfig.elbow_pole_candidates``). Vectors are (3,) float64, world frame; angles
 radians; lengths metres.
@@ -92,12 +93,52 @@ def _range_excess(a, lo, hi):
 @njit(cache=True, nogil=True)
 def joint_violation(ang, lo, hi, dof, j):
     """Limit violation (radians) of joint j: how far its moving angles ``ang`` (J, 3) lie
-    outside ``lo``, ``hi`` (J, 3) radians (``dof`` (J, 3) bool), summed."""
+    outside ``lo``, ``hi`` (J, 3) radians (``dof`` (J, 3) bool), summed; a joint whose Y range
+    passes the horizontal (the shoulder) judged as swing and twist (``_swing_twist_violation``)."""
+    if dof[j, 0] and dof[j, 1] and dof[j, 2] and max(abs(lo[j, 1]), abs(hi[j, 1])) > 0.5 * np.pi:
+        return _swing_twist_violation(ang[j, 0], ang[j, 1], ang[j, 2], lo[j], hi[j])
     v = 0.0
     for q in range(3):
         if dof[j, q]:
             v += _range_excess(ang[j, q], lo[j, q], hi[j, q])
     return v
+
+
+TWIST_FULL_WEIGHT_RAD = 0.75 * np.pi   # elevation up to which the twist limit holds in full
+
+
+@njit(cache=True, nogil=True)
+def _swing_twist_violation(x, y, z, lo, hi):
+    """Limit violation (radians) of a joint that swings past the horizontal (the shoulder;
+    X-Y-Z angles x, y, z, limits lo, hi (3,)), judged as swing and twist:
+
+    * swing: where the bone points, from the X and Y limits: of the |Y| <= pi/2 name below
+      the horizontal (the X range is the extension limit there), of the better of the two
+      names above it (an arm raised sideways past the shoulder has only (x + pi, pi - y));
+    * twist: the rotation about the bone left after the minimal swing of the rest frame (Z
+      down) onto the bone, against the Z limits. It equals Z near the rest pose and stays
+      near 0 on a plain raise in any plane, where an Euler name's Z reaches pi (Codman's
+      paradox). The minimal swing is undefined with the bone straight up, so the twist's
+      limit fades from full weight at ``TWIST_FULL_WEIGHT_RAD`` of elevation to none at pi.
+
+    A rotation that both names' boxes admit (``_viol3``), a hanging arm turned about itself
+    by pi ((x + pi, pi - y, z) with x, y small), has a twist of pi: its elbow bends backwards."""
+    cx, sx, cy, sy, cz, sz = np.cos(x), np.sin(x), np.cos(y), np.sin(y), np.cos(z), np.sin(z)
+    d0, d1, d2 = sy, -sx * cy, cx * cy                                      # the bone: M[:, 2]
+    m00, m10, m20 = cy * cz, cx * sz + sx * sy * cz, sx * sz - cx * sy * cz  # M[:, 0]
+    sw = _range_excess(x, lo[0], hi[0]) + _range_excess(y, lo[1], hi[1])
+    if d2 < 0.0:                                                          # above the horizontal
+        x2 = x + np.pi if x <= 0.0 else x - np.pi
+        y2 = np.pi - y if y >= 0.0 else -np.pi - y
+        sw = min(sw, _range_excess(x2, lo[0], hi[0]) + _range_excess(y2, lo[1], hi[1]))
+    w = min(1.0, (np.pi - np.arccos(min(1.0, max(-1.0, d2)))) / (np.pi - TWIST_FULL_WEIGHT_RAD))
+    if w <= 0.0:
+        return sw
+    k = 1.0 / (1.0 + d2)                                # minimal swing of e_z onto d: its e_x image
+    r0, r1, r2 = 1.0 - d0 * d0 * k, -d0 * d1 * k, -d0
+    c = r0 * m00 + r1 * m10 + r2 * m20
+    s = d0 * (r1 * m20 - r2 * m10) + d1 * (r2 * m00 - r0 * m20) + d2 * (r0 * m10 - r1 * m00)
+    return sw + w * _range_excess(np.arctan2(s, c), lo[2], hi[2])
 
 
 @njit(cache=True, nogil=True)

@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from mocap_rt.body.analytic import AnalyticConfig, analytic_pose
 from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.limb_geometry import joint_violation
 from mocap_rt.body.skeleton import J, body_model
 from mocap_rt.names import CUE_JOINT_INDEX
 
@@ -23,6 +24,34 @@ def shoulder_violation_deg(model, angles, side):
     wrap = lambda v: (v + 180.0) % 360.0 - 180.0  # noqa: E731
     b = np.array([wrap(a[0] + 180), wrap(180 - a[1]), wrap(a[2] + 180)])
     return min(float(np.sum(np.maximum(0, lo - x) + np.maximum(0, x - hi))) for x in (a, b))
+
+
+def shoulder_swing_twist_deg(model, angles, side):
+    """Degrees the shoulder's rotation lies outside its limits judged as swing and twist (the
+    fit's measure, ``limb_geometry._swing_twist_violation``), with scipy: where the bone
+    points, on the X and Y limits (of scipy's |Y| <= 90 deg name below the horizontal, the
+    better of it and (X + 180, 180 - Y, Z + 180) above); the rotation about the bone left
+    after the minimal swing of the rest frame (Z down) onto it, on the Z limits, with a
+    weight falling from 1 at 135 deg of elevation to 0 straight up."""
+    j = J[f"shoulder_{side}"]
+    lo, hi = np.degrees(model.limits[j, :, 0]), np.degrees(model.limits[j, :, 1])
+    R = Rotation.from_euler("XYZ", angles[j])
+    a = R.as_euler("XYZ", degrees=True)
+    wrap = lambda v: (v + 180.0) % 360.0 - 180.0  # noqa: E731
+    b = np.array([wrap(a[0] + 180), wrap(180 - a[1]), wrap(a[2] + 180)])
+    excess = lambda v, k: max(0.0, lo[k] - v) + max(0.0, v - hi[k])  # noqa: E731
+    d = R.apply([0.0, 0.0, 1.0])
+    swing = excess(a[0], 0) + excess(a[1], 1)
+    if d[2] < 0:
+        swing = min(swing, excess(b[0], 0) + excess(b[1], 1))
+    w = min(1.0, (180.0 - np.degrees(np.arccos(np.clip(d[2], -1, 1)))) / 45.0)
+    if w <= 0:
+        return swing
+    axis = np.cross([0.0, 0.0, 1.0], d)
+    n = np.linalg.norm(axis)
+    S = Rotation.from_rotvec(axis / n * np.arccos(np.clip(d[2], -1, 1))) if n > 1e-12 else Rotation.identity()
+    twist = np.degrees((R * S.inv()).as_rotvec() @ d)
+    return swing + w * excess(twist, 2)
 
 
 def arm_poses(rng, kind, n):
@@ -119,3 +148,34 @@ def test_searched_pole_is_the_best_of_the_candidates():
                 np.testing.assert_allclose(got[J[f"shoulder_{s}"]], best[J[f"shoulder_{s}"]], atol=1e-6)
                 checked += 1
     assert checked == 60
+
+
+def test_the_fit_judges_a_shoulder_by_swing_and_twist():
+    """``joint_violation``, the limit term of the fit's and the identity's cost, equals the
+    scipy oracle on the shoulders: arms raised past the shoulder in any plane cost nothing
+    (their |Y| <= 90 deg name has X and Z near 180 deg, which cost such an arm 200-230
+    degrees when judged on that name alone), a hanging arm turned about itself by 180 deg
+    (the elbow bending backwards, which the other name's box admits: ``shoulder_violation_deg``)
+    costs its twist past the limit, and random rotations cost what the oracle says."""
+    model = body_model(preset="paper")
+    lo, hi = np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1])
+    rng = np.random.default_rng(25)
+    for s, sx in (("l", -1.0), ("r", 1.0)):
+        j = J[f"shoulder_{s}"]
+        for i in range(300):
+            if i < 40:     # raised sideways, forwards or in between, past the horizontal, little twist
+                turn = Rotation.from_euler("Z", sx * rng.uniform(0, 90), degrees=True)  # about the rest bone
+                R = turn.inv() * Rotation.from_euler("XYZ", [0, sx * rng.uniform(95, 178), 0], degrees=True) * turn
+                R = R * Rotation.from_euler("Z", sx * rng.uniform(-15, 15), degrees=True)
+            elif i < 60:   # hanging, turned about itself by 180 deg
+                R = Rotation.from_euler("XYZ", [rng.uniform(-10, 0), sx * rng.uniform(0, 10), 180], degrees=True)
+            else:
+                R = Rotation.random(random_state=rng)
+            a = np.zeros((20, 3))
+            a[j] = R.as_euler("XYZ")              # the |Y| <= 90 deg name, as the fit reads it
+            got = np.degrees(joint_violation(a, lo, hi, model.dof, j))
+            assert got == pytest.approx(shoulder_swing_twist_deg(model, a, s), abs=1e-6)
+            if i < 40:
+                assert got == 0.0
+            elif i < 60:
+                assert got > 80.0 and shoulder_violation_deg(model, a, s) == 0.0
