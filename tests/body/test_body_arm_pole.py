@@ -15,14 +15,20 @@ FIXED = AnalyticConfig(elbow_pole_candidates=0)
 SEARCH = AnalyticConfig()
 
 
+def shoulder_names_deg(model, angles, side):
+    """The shoulder's limits (lo, hi) and its rotation's two X-Y-Z names, scipy's (|Y| <= 90
+    deg) and (X + 180, 180 - Y, Z + 180), degrees."""
+    j = J[f"shoulder_{side}"]
+    lo, hi = np.degrees(model.limits[j, :, 0]), np.degrees(model.limits[j, :, 1])
+    a = Rotation.from_euler("XYZ", angles[j]).as_euler("XYZ", degrees=True)
+    wrap = lambda v: (v + 180.0) % 360.0 - 180.0  # noqa: E731
+    return lo, hi, a, np.array([wrap(a[0] + 180), wrap(180 - a[1]), wrap(a[2] + 180)])
+
+
 def shoulder_violation_deg(model, angles, side):
     """Degrees the shoulder's rotation lies outside its limits, judged on both X-Y-Z names of
     the rotation (scipy's, |Y| <= 90 deg, and (X + 180, 180 - Y, Z + 180))."""
-    j = J[f"shoulder_{side}"]
-    lo, hi = np.degrees(model.limits[j, :, 0]), np.degrees(model.limits[j, :, 1])
-    a = Rotation.from_matrix(Rotation.from_euler("XYZ", angles[j]).as_matrix()).as_euler("XYZ", degrees=True)
-    wrap = lambda v: (v + 180.0) % 360.0 - 180.0  # noqa: E731
-    b = np.array([wrap(a[0] + 180), wrap(180 - a[1]), wrap(a[2] + 180)])
+    lo, hi, a, b = shoulder_names_deg(model, angles, side)
     return min(float(np.sum(np.maximum(0, lo - x) + np.maximum(0, x - hi))) for x in (a, b))
 
 
@@ -33,12 +39,8 @@ def shoulder_swing_twist_deg(model, angles, side):
     better of it and (X + 180, 180 - Y, Z + 180) above); the rotation about the bone left
     after the minimal swing of the rest frame (Z down) onto it, on the Z limits, with a
     weight falling from 1 at 135 deg of elevation to 0 straight up."""
-    j = J[f"shoulder_{side}"]
-    lo, hi = np.degrees(model.limits[j, :, 0]), np.degrees(model.limits[j, :, 1])
-    R = Rotation.from_euler("XYZ", angles[j])
-    a = R.as_euler("XYZ", degrees=True)
-    wrap = lambda v: (v + 180.0) % 360.0 - 180.0  # noqa: E731
-    b = np.array([wrap(a[0] + 180), wrap(180 - a[1]), wrap(a[2] + 180)])
+    lo, hi, a, b = shoulder_names_deg(model, angles, side)
+    R = Rotation.from_euler("XYZ", angles[J[f"shoulder_{side}"]])
     excess = lambda v, k: max(0.0, lo[k] - v) + max(0.0, v - hi[k])  # noqa: E731
     d = R.apply([0.0, 0.0, 1.0])
     swing = excess(a[0], 0) + excess(a[1], 1)
