@@ -4,7 +4,8 @@ Six cue points leave the body's pan and the swivel of each elbow and knee about 
 shoulder->hand (hip->foot) line undetermined (seed digest A.5). ``BodyFitter.fit``
 chooses them: each candidate is an analytic pose (``analytic._analytic``) scored by
 
-    cost = limit violation (degrees, range-of-motion table)
+    cost = limit violation (degrees, range-of-motion table; the shoulders as swing and twist,
+           ``limb_geometry.joint_violation``)
            + ``silhouette_weight`` * chamfer cost of its capsule body (cm^2, ``body.silhouette``)
            + ``pan_change_cost`` * |pan turned| + per limb ``swivel_change_cost`` * |swivel changed|
            + ``swivel_prior_cost`` * |swivel away from the default pole|   (degrees)
