@@ -72,3 +72,18 @@ def hand_behind_head(tmp_path_factory):
     synthesize(clip, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=0.6, start_s=0.8, seed=3,
                motion_name=name)
     return out
+
+
+@pytest.fixture(scope="session")
+def jumping_jacks(tmp_path_factory):
+    """The procedural jumping jacks (seed 0), 2 s from 0.8 s as the suite plays them: the arms
+    swing sideways past the shoulders to overhead and back, the feet jump apart and together;
+    6-camera ring at 320x240, 30 fps, with truth and silhouettes."""
+    from mocap_rt.studio.synth import make_rig, synthesize
+    from mocap_rt.studio.variants import load_motion
+
+    clip, name = load_motion("procedural:jumping_jacks:0")
+    out = tmp_path_factory.mktemp("jumping_jacks") / "rec"
+    synthesize(clip, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=2.0, start_s=0.8, seed=3,
+               motion_name=name)
+    return out
