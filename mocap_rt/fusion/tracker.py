@@ -227,6 +227,14 @@ class BodyTracker:
         root, angles, joints = self.solve_with_axes(cues_ik, axes, self._swivel)
         return root, angles, joints, axes
 
+    def _solve_and_keep(self, cues_ik: np.ndarray, targets: SilhouetteTargets | None,
+                        feet: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The frame's pose (``solve_pose`` with the smoothed torso velocity), kept as the last
+        pose and its hips (the next frame's identity input)."""
+        root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
+        self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
+        return root, angles, joints, axes
+
     def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
         """Cues (6, 3) with missing hands/feet put at the rest pose (arms hanging, legs straight),
         placed with the body axes at the torso (``identity.fill_missing``)."""
@@ -329,10 +337,8 @@ class BodyTracker:
             v = self.filter.vel[C_TORSO]
             a = self.config.velocity_smoothing
             self._vel = v.copy() if self._vel is None else a * self._vel + (1 - a) * v
-            root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
+            root, angles, joints, axes = self._solve_and_keep(cues_ik, targets, feet)
             pan = pan_angle(axes)
-            self._last_pose = (root, angles)
-            self._hips = joints[_HIPS].copy()
             joint_valid = joint_validity(have)
         calib_sample = (np.where(valid[:, None], X, np.nan), axes)
         if scored is None:
@@ -388,9 +394,8 @@ class BodyTracker:
                 self._right = (None if right_before is None else
                                -right_before if ALTERNATIVES[k] == "mirror" else right_before)
                 cues_ik = swap_pairs(cues_ik, k)
-                root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets,
-                                                             None if feet is None else swap_pairs(feet, k))
-                self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
+                root, angles, joints, axes = self._solve_and_keep(cues_ik, targets,
+                                                                  None if feet is None else swap_pairs(feet, k))
                 result = replace(result, cues_3d=swap_pairs(result.cues_3d, k),
                                  cue_valid=swap_pairs(result.cue_valid, k), joints=joints,
                                  bvh_frame=self.bvh_row(root, angles), root_pos=root, angles=angles,
