@@ -108,13 +108,13 @@ def angles_from_frames(model: BodyModel, rotations: np.ndarray) -> np.ndarray:
     return out
 
 
-def other_xyz_name(angles: np.ndarray) -> np.ndarray:
-    """(..., 3) X-Y-Z angles -> the rotation's other name, (X + pi, pi - Y, Z + pi) wrapped
-    into (-pi, pi]: ``euler_xyz_from_matrix`` gives |Y| <= pi/2; an arm raised sideways
-    above the shoulder has its angles within the limits only under this one."""
-    a = np.asarray(angles, dtype=np.float64)
-    wrap = lambda v: np.pi - (np.pi - v) % (2 * np.pi)  # noqa: E731
-    return np.stack([wrap(a[..., 0] + np.pi), wrap(np.pi - a[..., 1]), wrap(a[..., 2] + np.pi)], axis=-1)
+@njit(cache=True, nogil=True)
+def other_xyz_name(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """The other X-Y-Z name (x + pi, pi - y, z + pi) of the rotation named (x, y, z), each
+    angle kept within [-pi, pi]: ``euler_xyz_from_matrix`` gives |Y| <= pi/2; an arm raised
+    sideways above the shoulder has its angles within the limits only under the other."""
+    return (x + np.pi if x <= 0.0 else x - np.pi, np.pi - y if y >= 0.0 else -np.pi - y,
+            z + np.pi if z <= 0.0 else z - np.pi)
 
 
 def quaternions_from_angles(angles: np.ndarray) -> np.ndarray:

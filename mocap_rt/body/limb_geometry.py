@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from mocap_rt.body.kinematics import other_xyz_name
+
 # Relative reach below which a limb is treated as folded (avoids the |L1 - L2| singularity).
 MIN_REACH_FRAC = 0.05
 
@@ -104,14 +106,6 @@ def joint_violation(ang, lo, hi, dof, j):
     return v
 
 
-@njit(cache=True, nogil=True)
-def _other_name(x, y, z):
-    """The other X-Y-Z name (x + pi, pi - y, z + pi) of a rotation named (x, y, z), |y| <= pi/2,
-    each angle kept within [-pi, pi]."""
-    return (x + np.pi if x <= 0.0 else x - np.pi, np.pi - y if y >= 0.0 else -np.pi - y,
-            z + np.pi if z <= 0.0 else z - np.pi)
-
-
 TWIST_FULL_WEIGHT_RAD = 0.75 * np.pi   # elevation up to which the twist limit holds in full
 
 
@@ -136,7 +130,7 @@ def _swing_twist_violation(x, y, z, lo, hi):
     m00, m10, m20 = cy * cz, cx * sz + sx * sy * cz, sx * sz - cx * sy * cz  # M[:, 0]
     sw = _range_excess(x, lo[0], hi[0]) + _range_excess(y, lo[1], hi[1])
     if d2 < 0.0:                                                          # above the horizontal
-        x2, y2, _ = _other_name(x, y, z)
+        x2, y2, _ = other_xyz_name(x, y, z)
         sw = min(sw, _range_excess(x2, lo[0], hi[0]) + _range_excess(y2, lo[1], hi[1]))
     w = min(1.0, (np.pi - np.arccos(min(1.0, max(-1.0, d2)))) / (np.pi - TWIST_FULL_WEIGHT_RAD))
     if w <= 0.0:
@@ -155,7 +149,7 @@ def _viol3(x, y, z, lo, hi):
     (``euler_xyz_from_matrix``) and (x + pi, pi - y, z + pi) (wrapped); an arm raised
     sideways above the shoulder (abduction > 90 deg) has only the second name."""
     v1 = _range_excess(x, lo[0], hi[0]) + _range_excess(y, lo[1], hi[1]) + _range_excess(z, lo[2], hi[2])
-    x2, y2, z2 = _other_name(x, y, z)
+    x2, y2, z2 = other_xyz_name(x, y, z)
     return min(v1, _range_excess(x2, lo[0], hi[0]) + _range_excess(y2, lo[1], hi[1]) + _range_excess(z2, lo[2], hi[2]))
 
 

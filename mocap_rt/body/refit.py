@@ -146,11 +146,12 @@ def pose_from_refit(model: BodyModel, P: np.ndarray, effectors: dict[str, np.nda
     """
     R = frames_from_joints(model, P)
     raw = angles_from_frames(model, R)
-    alt = other_xyz_name(raw)                 # a rotation's two names: the one nearer the limits
     lo, hi = model.limits[..., 0], model.limits[..., 1]
-    excess = lambda a: (np.maximum(0.0, lo - a) + np.maximum(0.0, a - hi)).sum(axis=1)  # noqa: E731
-    use = model.dof.all(axis=1) & (excess(alt) < excess(raw))
-    raw[use] = alt[use]
+    for j in np.flatnonzero(model.dof.all(axis=1)):   # a rotation's two names: the one nearer the limits
+        alt = np.array(other_xyz_name(*raw[j]))
+        excess = lambda a: float((np.maximum(0.0, lo[j] - a) + np.maximum(0.0, a - hi[j])).sum())  # noqa: E731
+        if excess(alt) < excess(raw[j]):
+            raw[j] = alt
     angles = model.clamp(raw)
     angles[0] = raw[0]                      # the root's rotation is free
     root = P[J["pelvis"]]
