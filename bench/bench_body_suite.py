@@ -5,6 +5,7 @@
     python -m bench body_suite --held-out           # procedural seeds 1000+ and variants never tuned on
     python -m bench body_suite --clips proc_clap_s0,walk_backwards_131_01 --json after.json --compare before.json
     python -m bench body_suite --quick --truth-bones   # the truth's bone lengths: the estimate's share of the error
+    python -m bench body_suite --render-seed 1      # another render of the same clips: the suite's noise floor
 
 Each clip's studio recording (6-camera ring, 640x480, 30 fps; bench/out/suite, rendered once)
 goes through ``mocap_rt.fusion.offline.process_recording`` (what ``mocap-rt process`` runs:
@@ -114,13 +115,18 @@ def compare(before: dict, after: dict) -> None:
     keys = (("MPJPE", "mpjpe_mm"), ("mirr%", "mirrored_pct"), ("hd95", "heading_p95_deg"),
             ("elbow", "elbow_mm"), ("knee", "knee_mm"), ("cue95", "cue_p95_mm"))
     print(f"\n{'clip':30s} " + " ".join(f"{h:>13s}" for h, _ in keys))
-    for name, a in after.items():
-        b = before.get(name)
-        if b is None:
-            continue
+    common = [name for name in after if name in before]
+    n_worse = 0
+    for name in common:
+        a, b = after[name], before[name]
         cells = " ".join(f"{b.get(k, np.nan):6.0f}->{a.get(k, np.nan):<5.0f}" for _, k in keys)
         worse = a.get("cue_p95_mm", 0) > 1.05 * b.get("cue_p95_mm", np.inf) + 1.0
+        n_worse += worse
         print(f"{name[:30]:30s} {cells}{'  cue 3D WORSE' if worse else ''}")
+    if common:
+        mean = lambda res, k: np.nanmean([res[n].get(k, np.nan) for n in common])  # noqa: E731
+        print(f"{'mean over clips':30s} " + " ".join(f"{mean(before, k):6.1f}->{mean(after, k):<5.1f}" for _, k in keys))
+        print(f"cue 3D worse on {n_worse} of {len(common)} clips")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -135,6 +141,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--compare", default=None, help="a JSON from an earlier run: print before -> after")
     ap.add_argument("--no-desktop", action="store_true", help="skip the 2-camera desktop rig rows")
     ap.add_argument("--no-lock", action="store_true", help="do not take /tmp/mocap-timing.lock")
+    ap.add_argument("--render-seed", type=int, default=0,
+                    help="the studio render's seed (camera gains, flicker, sensor noise): another capture of "
+                         "the same motions, to tell a change's effect from the suite's noise floor")
     ap.add_argument("--truth-bones", action="store_true",
                     help="the truth's bone lengths instead of the estimate (the estimate's share of the error)")
     args = ap.parse_args(argv)
@@ -144,12 +153,13 @@ def main(argv: list[str] | None = None) -> int:
     with timing_lock(not args.no_lock):
         ys = yardstick_ms()
     print(header(ys))
-    print(f"suite '{which if not args.clips else 'selected'}': {len(clips)} clips, 6-camera ring {size[0]}x{size[1]}, "
+    print(f"suite '{which if not args.clips else 'selected'}': {len(clips)} clips, 6-camera ring {size[0]}x{size[1]} "
+          f"(render seed {args.render_seed}), "
           f"30 fps, mocap-rt process (closed loop, {'truth' if args.truth_bones else 'estimated'} bones); "
           "errors mm, angles deg")
     results, t0 = {}, time.perf_counter()
     for c in clips:
-        rec = ensure_recording(c, size)
+        rec = ensure_recording(c, size, render_seed=args.render_seed)
         results[c.name] = run_clip(rec, not args.no_lock, truth_bones=args.truth_bones)
         print(_row(c.name, results[c.name]), flush=True)
     print(f"\n== motion suite ({len(clips)} clips, {time.perf_counter() - t0:.0f} s) ==")
@@ -159,7 +169,8 @@ def main(argv: list[str] | None = None) -> int:
         print("\n2-camera desktop rig (upper body scored: legs and foot cues left out):")
         print(_head())
         for c in select(suite_clips("all"), "proc_clap_s0,proc_hands_cross_face_s0"):
-            desktop[c.name] = run_clip(ensure_recording(c, size, rig="desktop"), not args.no_lock, legs=False,
+            desktop[c.name] = run_clip(ensure_recording(c, size, rig="desktop", render_seed=args.render_seed),
+                                       not args.no_lock, legs=False,
                                        truth_bones=args.truth_bones)
             print(_row(c.name, desktop[c.name]))
     if args.json:
