@@ -124,7 +124,8 @@ def compare(before: dict, after: dict) -> None:
         n_worse += worse
         print(f"{name[:30]:30s} {cells}{'  cue 3D WORSE' if worse else ''}")
     if common:
-        mean = lambda res, k: np.nanmean([res[n].get(k, np.nan) for n in common])  # noqa: E731
+        def mean(res: dict, k: str) -> float:
+            return float(np.nanmean([res[n].get(k, np.nan) for n in common]))
         print(f"{'mean over clips':30s} " + " ".join(f"{mean(before, k):6.1f}->{mean(after, k):<5.1f}" for _, k in keys))
         print(f"cue 3D worse on {n_worse} of {len(common)} clips")
 
@@ -175,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
             print(_row(c.name, desktop[c.name]))
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump({"yardstick_ms": ys, "size": list(size), "clips": results, "desktop": desktop}, fh, indent=1)
+            json.dump({"yardstick_ms": ys, "size": list(size), "render_seed": args.render_seed, "clips": results,
+                       "desktop": desktop}, fh, indent=1)
         print(f"wrote {args.json}")
     if args.compare:
         with open(args.compare) as fh:
