@@ -83,7 +83,7 @@ def foot_axes(cues: Mapping[str, CameraCues], camera_names: Sequence[str], weigh
     round, the torso's ellipse is the body's).
 
     cues : camera name -> CameraCues (cameras missing from it measure nothing).
-    weights : (C, 6) the cue weights fusion uses (``BodyTracker._gather``: confidence, 0 where
+    weights : (C, 6) the cue weights fusion uses (``views.cue_pixels``: confidence, 0 where
         dropped), else each cue's ``confidence``.
     The weight w = elongation * weight, 0 for a blob under ``min_area_px`` pixels or one whose
     one-sigma major axis reaches the other foot's centre in that view. ``t`` (px) is where the

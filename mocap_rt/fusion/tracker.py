@@ -52,20 +52,15 @@ from mocap_rt.fusion.filter import CueFilter, FilterConfig
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
                                       crossed_legs_cm2, decide, fill_missing, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
-from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, fix_left_right, frontal_pair, head_on_trunk,
-                                   predict_views, reject_duplicates, triangulate_cues)
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair,
+                                   head_on_trunk, predict_views, reject_duplicates, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
-from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, CUE_INDEX, CUE_JOINT_INDEX, N_CUES
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, CUE_INDEX, CUE_JOINT_INDEX, N_CUES
 
 log = logging.getLogger(__name__)
 
-# Head blob radius assumed when perception gives no area (pixels).
-MIN_BLOB_RADIUS_PX = 8.0
-# A hand whose 2D cue lies within this many head-blob radii of the head's is taken for
-# a second detection of the face in that view and dropped there.
-SAME_BLOB_RADII = 1.5
 _EFFECTOR_CUES = np.array([CUE_INDEX[n] for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
 VIEW_MODES = ("all", "pair")
@@ -157,29 +152,6 @@ class BodyTracker:
         return self._bvh
 
     # ------------------------------------------------------------------ 2D -> 3D
-    def _gather(self, cues: Mapping[str, CameraCues]) -> tuple[np.ndarray, np.ndarray]:
-        C = len(self.cameras)
-        uv = np.full((C, N_CUES, 2), np.nan)
-        w = np.zeros((C, N_CUES))
-        head_r = np.zeros(C)
-        for name, cc in cues.items():
-            c = self._index.get(name)
-            if c is None:
-                continue
-            uv[c] = cc.xy
-            w[c] = cc.confidence
-            head_r[c] = cc.area[C_HEAD]
-        ok = np.isfinite(uv).all(-1) & (w >= self.config.min_confidence) & (w > 0)
-        # a hand found on the head's blob in a view is the same blob twice: drop it there
-        r = np.maximum(MIN_BLOB_RADIUS_PX, np.sqrt(np.maximum(head_r, 0.0) / np.pi))
-        for h in (C_HAND_L, C_HAND_R):
-            same = ok[:, C_HEAD] & ok[:, h] & (
-                np.linalg.norm(uv[:, h] - uv[:, C_HEAD], axis=1) < SAME_BLOB_RADII * r)
-            ok[same, h] = False
-        uv[~ok] = np.nan
-        w[~ok] = 0.0
-        return uv, w
-
     def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6)."""
         thr = np.full(N_CUES, self.config.max_reproj_px)
@@ -299,7 +271,7 @@ class BodyTracker:
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
         t_s = frame / self.config.fps
-        uv, w = self._gather(cues)
+        uv, w = cue_pixels(cues, self._index, len(self.cameras), self.config.min_confidence)
         targets = (SilhouetteTargets.from_cues(self.cameras, cues, self._sil_projection)
                    if self.config.silhouettes else None)
         feet = (foot_axes(cues, self._names, w) if targets is not None and self.config.fit.foot_axis_weight > 0

@@ -13,6 +13,8 @@
 * ``fix_left_right`` — a single view cannot be sure which hand (foot) is the left one:
   per view, keep the labelling that agrees with the 3D prediction, or at a cold start
   the combination of per-view labellings that triangulates best.
+* ``cue_pixels`` — the cameras' 2D cues of one frame as per-view arrays, without a hand
+  that a view found on the head's blob.
 * ``predict_views`` — A.4: project the predicted 3D cues into every camera and test
   visibility with a Z-buffer on the distance from the camera centre: a cue is hidden
   when a nearer cue's disc covers its centre, or when it falls outside the image.
@@ -20,18 +22,51 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from mocap_rt.cues import CameraCues
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.geometry.lens import dist8, distort
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
-from mocap_rt.names import C_HEAD, C_TORSO, LIMB_CUES, LR_PAIRS
+from mocap_rt.names import C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, LIMB_CUES, LR_PAIRS, N_CUES
 
 # Physical cue radii (metres) for the predicted blob size and the Z-buffer discs,
 # in CUE_NAMES order: head, hands, feet (shoe), torso.
 CUE_RADII_M = np.array([0.10, 0.05, 0.05, 0.06, 0.06, 0.15])
+# Head blob radius assumed when perception gives no area (pixels).
+MIN_BLOB_RADIUS_PX = 8.0
+# A hand whose 2D cue lies within this many head-blob radii of the head's is taken for
+# a second detection of the face in that view and dropped there.
+SAME_BLOB_RADII = 1.5
+
+
+def cue_pixels(cues: Mapping[str, CameraCues], index: Mapping[str, int], n_cameras: int,
+               min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    """One frame's 2D cues as per-view arrays: pixels (C, 6, 2) (NaN where not measured) and
+    weights (C, 6) (the cues' confidences; 0 where not measured) of the cameras named in
+    ``index`` (name -> row; other cameras are ignored). A cue below ``min_confidence`` is not
+    measured, nor is a hand found within ``SAME_BLOB_RADII`` head-blob radii of the head in
+    a view (the same blob twice)."""
+    uv = np.full((n_cameras, N_CUES, 2), np.nan)
+    w = np.zeros((n_cameras, N_CUES))
+    head_r = np.zeros(n_cameras)
+    for name, cc in cues.items():
+        c = index.get(name)
+        if c is None:
+            continue
+        uv[c] = cc.xy
+        w[c] = cc.confidence
+        head_r[c] = cc.area[C_HEAD]
+    ok = np.isfinite(uv).all(-1) & (w >= min_confidence) & (w > 0)
+    r = np.maximum(MIN_BLOB_RADIUS_PX, np.sqrt(np.maximum(head_r, 0.0) / np.pi))
+    for h in (C_HAND_L, C_HAND_R):
+        same = ok[:, C_HEAD] & ok[:, h] & (np.linalg.norm(uv[:, h] - uv[:, C_HEAD], axis=1) < SAME_BLOB_RADII * r)
+        ok[same, h] = False
+    uv[~ok] = np.nan
+    w[~ok] = 0.0
+    return uv, w
 
 
 class RigProjector:
