@@ -138,6 +138,11 @@ def frames_from_joints(model: BodyModel, P: np.ndarray) -> np.ndarray:
     return R
 
 
+def _limit_excess(a: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """How far (radians, summed) the angles ``a`` lie outside [lo, hi]."""
+    return float(np.abs(a - np.clip(a, lo, hi)).sum())
+
+
 def pose_from_refit(model: BodyModel, P: np.ndarray, effectors: dict[str, np.ndarray],
                     config: CcdConfig = CcdConfig(angle_tolerance_deg=30.0)) -> tuple[np.ndarray, IkResult]:
     """Model pose from refit joints, then CCD back to the measured end effectors.
@@ -149,8 +154,7 @@ def pose_from_refit(model: BodyModel, P: np.ndarray, effectors: dict[str, np.nda
     lo, hi = model.limits[..., 0], model.limits[..., 1]
     for j in np.flatnonzero(model.dof.all(axis=1)):   # a rotation's two names: the one nearer the limits
         alt = np.array(other_xyz_name(*raw[j]))
-        excess = lambda a: float((np.maximum(0.0, lo[j] - a) + np.maximum(0.0, a - hi[j])).sum())  # noqa: E731
-        if excess(alt) < excess(raw[j]):
+        if _limit_excess(alt, lo[j], hi[j]) < _limit_excess(raw[j], lo[j], hi[j]):
             raw[j] = alt
     angles = model.clamp(raw)
     angles[0] = raw[0]                      # the root's rotation is free
