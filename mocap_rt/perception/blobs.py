@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap_rt.perception.blob_kernels import N_MOMENTS, REFINE_PARAMS, label_and_refine, params_record
-from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions, snap_regions, snap_window
-from mocap_rt.perception.track_kernels import GATE_PARAMS, finish_frame, predict_gates
+from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions
+from mocap_rt.perception.track_kernels import GATE_PARAMS, finish_frame, label_frame
 
 log = logging.getLogger(__name__)
 
@@ -72,10 +72,19 @@ class BlobFrame:
     cov: np.ndarray         # (K, 2, 2) float64 px^2, Gaussian blob covariance
     area: np.ndarray        # (K,) float64 px^2 (deformed region, or pixel count if occluded)
     confidence: np.ndarray  # (K,) float64 in [0, 1]
-    contours: list          # K entries: (n_pts, 2) float64 deformed contour, or None
 
 
 _NO_SIL = np.zeros((1, 1), np.uint8)
+# Region snap (``BlobParams.snap_to_regions``, ``track_kernels.label_frame``): the prediction
+# guides, the evidence decides. When every predicted blob of a tracker has its own connected
+# colour region within reach (gate + the region's half size), the regions are assigned to the
+# blobs by the least total distance (all one-to-one assignments, K <= 3) and each blob is
+# labelled around its region's centre. Only for blobs within SNAP_NEAR_GATES x their two gates
+# of each other (elsewhere proximity cannot mix them up, and a missing blob is re-acquired). A
+# fast limb makes the prediction lag (a swinging foot moves ~0.1 m a frame), and labelling
+# pixels by proximity to lagging predictions splits one shoe between both feet or hands the
+# swing foot to the standing one. Merged regions (touching shoes) are too few: then the
+# predictions stay the centres.
 SNAP_WINDOW_GATES = 2.5     # region snap: search window around the predicted blobs, in gate radii
 SNAP_MAX_REGIONS = 5        # ... and at most this many candidate regions (nearest first)
 SNAP_NEAR_GATES = 2.0       # ... only for blobs nearer each other than this many times their two gates
@@ -108,6 +117,7 @@ class BlobTracker:
         self._out_area = np.zeros(K)
         self._out_contours = np.zeros((K, params.n_contour_pts, 2))
         self._has_contour = np.zeros(K, np.bool_)
+        self._offset = (0, 0)                     # last frame's ROI top-left, image px
         self._all_visible = np.ones(K, np.bool_)
         self._none_acquired = np.zeros(K, np.bool_)
         self._size = np.array([ROLE_SIZE.get(r, 1.0) for r in self.roles])
@@ -115,6 +125,10 @@ class BlobTracker:
         self._kp = params_record(REFINE_PARAMS, params)
         self._kp_nomirror = params_record(REFINE_PARAMS, params, mirror_iters=0)
         self._gate_params = params_record(GATE_PARAMS, params)
+        self._shape_arg = self._apart_cov if params.label_by_shape else _NO_SHAPE
+        self._centers = np.empty((K, 2))         # this frame's labelling centres (ROI px) and gates
+        self._gate = np.empty(K)
+        self._found = np.empty(K, np.bool_)
 
     def reseat(self, k: int, xy: np.ndarray, radius_px: float) -> None:
         """Put blob k's track at ``xy`` (2,) image px, at rest, with semi-major axis
@@ -151,27 +165,25 @@ class BlobTracker:
         p = self.params
         K = len(self.roles)
         ox, oy = roi_xy
-        centers = np.empty((K, 2))
-        gate = np.empty(K)
-        use_pred = pred_xy is not None
-        predict_gates(self._xy, self._vel, self._coast, self._radius, p.max_coast_frames,
-                      np.asarray(pred_xy, np.float64) if use_pred else _NAN_K2,
-                      np.asarray(pred_radius, np.float64) if use_pred and pred_radius is not None else _NAN_K,
-                      use_pred, float(ox), float(oy), self._gate_params, centers, gate)
-        visible = self._all_visible if pred_visible is None else np.asarray(pred_visible, np.bool_)
-
         bx, by, bw, bh = person_box_roi
-        sil = sil_roi if sil_roi is not None else _NO_SIL
         if bw <= 0 or bh <= 0:
             self._coast += 1
-            return BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K),
-                             [None] * K)
-        box = (bx, by, bx + bw, by + bh)
-        apart = False
-        if p.snap_to_regions and K >= 2:
-            centers, apart = self._snap_to_regions(skin_roi, box, centers, gate)
+            self._has_contour[:] = False
+            return BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K))
+        use_pred = pred_xy is not None
+        visible = self._all_visible if pred_visible is None else np.asarray(pred_visible, np.bool_)
+        sil = sil_roi if sil_roi is not None else _NO_SIL
         mirror = p.mirror_iters if sil_roi is not None else 0
-        found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
+        box = (bx, by, bx + bw, by + bh)
+        centers, gate, found = self._centers, self._gate, self._found
+        apart = label_frame(skin_roi, sil, *box, self._xy, self._vel, self._coast, self._radius, p.max_coast_frames,
+                            np.asarray(pred_xy, np.float64) if use_pred else _NAN_K2,
+                            np.asarray(pred_radius, np.float64) if use_pred and pred_radius is not None else _NAN_K,
+                            use_pred, float(ox), float(oy), self._gate_params, p.snap_to_regions, SNAP_NEAR_GATES,
+                            SNAP_WINDOW_GATES, p.acquire_min_area_px, SNAP_MAX_REGIONS, self._size, visible,
+                            self._kp if mirror else self._kp_nomirror, self._sums, self._out_xy, self._out_cov,
+                            self._out_area, self._out_contours, self._has_contour, self._shape_arg, centers, gate,
+                            found)
         acquired = self._none_acquired
         if not found.all():
             acquired = self._acquire(skin_roi, box, centers, found, ~found, top_roi, self._last_seen - (ox, oy))
@@ -186,10 +198,15 @@ class BlobTracker:
         finish_frame(self._sums[:, 0], found, visible, acquired, 4.0 * p.min_area_px, float(ox), float(oy),
                      self._out_xy, self._out_cov, xy, conf, self._xy, self._vel, self._radius, self._coast,
                      self._last_seen, int(p.max_coast_frames))
-        offset = np.array(roi_xy, np.float64)
-        return BlobFrame(xy, self._out_cov.copy(), self._out_area.copy(), conf,
-                         [self._out_contours[k] + offset if has else None
-                          for k, has in enumerate((self._has_contour & found).tolist())])
+        self._has_contour &= found
+        self._offset = roi_xy
+        return BlobFrame(xy, self._out_cov.copy(), self._out_area.copy(), conf)
+
+    def last_contours(self) -> list:
+        """The last frame's deformed contours, K entries: (n_pts, 2) float64 image px, or None
+        (occluded, lost, or the refinement rejected)."""
+        offset = np.array(self._offset, np.float64)
+        return [c + offset if has else None for c, has in zip(self._out_contours, self._has_contour.tolist())]
 
     def _run(self, skin_roi, sil, box, centers, gate, visible, mirror) -> np.ndarray:
         p = self.params
@@ -198,33 +215,10 @@ class BlobTracker:
                          np.ascontiguousarray(gate, np.float64), self._size, visible,
                          kp, self._sums, self._out_xy,
                          self._out_cov, self._out_area, self._out_contours, self._has_contour,
-                         self._apart_cov if p.label_by_shape else _NO_SHAPE)
+                         self._shape_arg)
         return self._sums[:, 0] >= p.min_area_px
 
     # ------------------------------------------------------------------ internals
-    def _snap_to_regions(self, skin_roi, box, centers, gate) -> np.ndarray:
-        """Labelling centres moved onto the colour regions the blobs belong to.
-
-        The prediction guides, the evidence decides: when every predicted blob of this
-        tracker has its own connected colour region within reach (gate + the region's half
-        size), the regions are assigned to the blobs by the least total distance (all
-        one-to-one assignments tried, K <= 3) and each blob is labelled around its region's
-        centre. Only done for blobs within ``SNAP_NEAR_GATES`` x their two gates of each
-        other (elsewhere proximity cannot mix them up, and a missing blob is re-acquired). A fast limb makes the prediction lag (a swinging foot moves ~0.1 m per
-        frame), and labelling pixels by proximity to lagging predictions splits one shoe
-        between both feet or hands the swing foot to the standing one. Regions that merged
-        (touching shoes) are not enough regions: then the predictions stay the centres.
-        Returns the centres and whether the blobs are apart (each on its own region, or none
-        near another).
-        """
-        wx0, wy0, wx1, wy1 = snap_window(centers, gate, *box, SNAP_NEAR_GATES, SNAP_WINDOW_GATES)
-        if wx1 <= wx0:
-            return centers, True
-        n, stats = colour_regions(skin_roi, wx0, wy0, wx1, wy1)
-        out = centers.copy()
-        snapped = snap_regions(stats, n, wx0, wy0, centers, gate, self.params.acquire_min_area_px, SNAP_MAX_REGIONS, out)
-        return out, bool(snapped)
-
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
         """Assign unclaimed colour regions to missing blobs; sets ``_acq_centers``/``_acq_gate``."""
         p = self.params

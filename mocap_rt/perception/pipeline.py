@@ -130,10 +130,19 @@ class CameraPerceiver:
         self._change = ChangeMask((w, h))                        # this frame's change codes
         self._sil: np.ndarray | None = None                      # last silhouette in its box
         self._sil_box = (0, 0, 0, 0)
-        self.last_contours: dict[str, np.ndarray] = {}           # deformed blob contours (viewer)
         self.scene = SceneState()                                # head size and place on the trunk (scene.py)
 
     # ------------------------------------------------------------------ public
+    @property
+    def last_contours(self) -> dict[str, np.ndarray]:
+        """The last frame's deformed blob contours (image px) by cue name (overlays)."""
+        out = {}
+        for tracker, idx in ((self.skin_tracker, _SKIN_IDX), (self.shoe_tracker, _SHOE_IDX)):
+            for k, c in zip(range(idx.start, idx.stop), tracker.last_contours()):
+                if c is not None:
+                    out[CUE_NAMES[k]] = c
+        return out
+
     @property
     def last_silhouette(self) -> np.ndarray | None:
         """(H, W) bool silhouette of the last processed frame (None before the first)."""
@@ -159,7 +168,6 @@ class CameraPerceiver:
         cov = np.full((N_CUES, 2, 2), np.nan)
         area = np.zeros(N_CUES)
         conf = np.zeros(N_CUES)
-        self.last_contours = {}
         if box[2] == 0:
             self.skin_tracker.step(np.zeros((1, 1), np.uint8), (0, 0), (0, 0, 0, 0), None)
             self.shoe_tracker.step(np.zeros((1, 1), np.uint8), (0, 0), (0, 0, 0, 0), None)
@@ -179,9 +187,6 @@ class CameraPerceiver:
             else:
                 res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, sil_roi=sil)
             xy[idx], cov[idx], area[idx], conf[idx] = res.xy, res.cov, res.area, res.confidence
-            for k, c in zip(range(idx.start, idx.stop), res.contours):
-                if c is not None:
-                    self.last_contours[CUE_NAMES[k]] = c
         leg_xy = np.empty((2, 2))
         leg_attachment(sil, bx, by, xy[_SHOE_IDX], cov[_SHOE_IDX], area[_SHOE_IDX], MIN_BLOB_AREA_PX, leg_xy)
         t3 = time.perf_counter()

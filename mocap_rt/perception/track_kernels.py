@@ -12,6 +12,9 @@ import math
 import numba
 import numpy as np
 
+from mocap_rt.perception.blob_kernels import label_and_refine
+from mocap_rt.perception.region_kernels import colour_regions, snap_regions, snap_window
+
 # The settings of ``predict_gates`` (from ``blobs.BlobParams``): a (1,) structured array read by
 # field name (``blob_kernels.params_record``).
 GATE_PARAMS = np.dtype([("gate_min_px", "f8"), ("gate_radius_factor", "f8"), ("gate_unknown_px", "f8"),
@@ -90,3 +93,45 @@ def finish_frame(n_px, found, visible, acquired, full_px, ox, oy, roi_xy, cov, x
         conf[k] = (min(1.0, n_px[k] / full_px) * (1.0 if visible[k] else 0.5) * (0.5 if acquired[k] else 1.0)
                    * (1.0 if found[k] else 0.0))
     update_tracks(found, xy_img, cov, xy, vel, radius, coast, last_seen, max_coast)
+
+
+@numba.njit(cache=True, nogil=True)
+def snap_centres(skin, x0, y0, x1, y1, centers, gate, near_gates, window_gates, min_area, max_regions):  # pragma: no cover
+    """The region snap (``blobs``, SNAP_*) of labelling centres (K, 2) ROI px, in place, in the box
+    [x0, x1) x [y0, y1): ``snap_window``, its ``colour_regions``, ``snap_regions``. Returns
+    whether the blobs are apart: none near another (no window), or each snapped onto its own region."""
+    if centers.shape[0] < 2:
+        return False
+    wx0, wy0, wx1, wy1 = snap_window(centers, gate, x0, y0, x1, y1, near_gates, window_gates)
+    if wx1 <= wx0:
+        return True
+    n, stats = colour_regions(skin, wx0, wy0, wx1, wy1)
+    # in place: snap_regions reads every centre before it writes one
+    return snap_regions(stats, n, wx0, wy0, centers, gate, min_area, max_regions, centers)
+
+
+@numba.njit(cache=True, nogil=True)
+def label_frame(skin, sil, x0, y0, x1, y1, xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_pred,
+                ox, oy, gp, snap, near_gates, window_gates, snap_min_area, snap_max_regions, size, visible, kp,
+                sums, out_xy, cov, area, contours, has_contour, shape, centers, gate, found):  # pragma: no cover
+    """A tracker frame up to its cues, in one call (``blobs.BlobTracker.step``): the labelling
+    centres and gates (``predict_gates``), with ``snap`` the centres moved onto the blobs'
+    own colour regions (``snap_centres``, settings ``near_gates`` ... ``snap_max_regions``),
+    then labelling and deformable ellipses
+    (``label_and_refine``) in the box [x0, x1) x [y0, y1) ROI px.
+
+    Writes centers (K, 2) ROI px and gate (K,) as used, ``label_and_refine``'s outputs and
+    found (K,) = at least ``kp``'s ``min_area_px`` pixels. Returns whether the blobs are
+    apart (each snapped onto its own region, or none near another; False without ``snap``).
+    """
+    predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_pred, ox, oy, gp, centers, gate)
+    apart = False
+    if snap:
+        apart = snap_centres(skin, x0, y0, x1, y1, centers, gate, near_gates, window_gates, snap_min_area,
+                             snap_max_regions)
+    label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp, sums, out_xy, cov, area,
+                     contours, has_contour, shape)
+    min_area = kp[0].min_area_px
+    for k in range(found.shape[0]):
+        found[k] = sums[k, 0] >= min_area
+    return apart
