@@ -176,29 +176,28 @@ class BlobTracker:
         mirror = p.mirror_iters if sil_roi is not None else 0
         box = (bx, by, bx + bw, by + bh)
         centers, gate, found = self._centers, self._gate, self._found
-        apart = label_frame(skin_roi, sil, *box, self._xy, self._vel, self._coast, self._radius, p.max_coast_frames,
-                            np.asarray(pred_xy, np.float64) if use_pred else _NAN_K2,
-                            np.asarray(pred_radius, np.float64) if use_pred and pred_radius is not None else _NAN_K,
-                            use_pred, float(ox), float(oy), self._gate_params, p.snap_to_regions, SNAP_NEAR_GATES,
-                            SNAP_WINDOW_GATES, p.acquire_min_area_px, SNAP_MAX_REGIONS, self._size, visible,
-                            self._kp if mirror else self._kp_nomirror, self._sums, self._out_xy, self._out_cov,
-                            self._out_area, self._out_contours, self._has_contour, self._shape_arg, centers, gate,
-                            found)
+        apart, n_found = label_frame(
+            skin_roi, sil, *box, self._xy, self._vel, self._coast, self._radius, p.max_coast_frames,
+            np.asarray(pred_xy, np.float64) if use_pred else _NAN_K2,
+            np.asarray(pred_radius, np.float64) if use_pred and pred_radius is not None else _NAN_K,
+            use_pred, float(ox), float(oy), self._gate_params, p.snap_to_regions, SNAP_NEAR_GATES, SNAP_WINDOW_GATES,
+            p.acquire_min_area_px, SNAP_MAX_REGIONS, self._size, visible, self._kp if mirror else self._kp_nomirror,
+            self._sums, self._out_xy, self._out_cov, self._out_area, self._out_contours, self._has_contour,
+            self._shape_arg, centers, gate, found)
         acquired = self._none_acquired
-        if not found.all():
+        if n_found < K:
             acquired = self._acquire(skin_roi, box, centers, found, ~found, top_roi, self._last_seen - (ox, oy))
             if acquired.any():
                 centers = np.where(acquired[:, None], self._acq_centers, centers)
                 gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
                 found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
-        if p.label_by_shape and apart:
-            # each blob's pixels were its own region: its shape, for the frames they touch
-            self._apart_cov[found] = self._out_cov[found]
         xy, conf = np.empty((K, 2)), np.empty(K)
+        # with label_by_shape and the blobs apart (each blob's pixels its own region): their shapes
+        # are kept for the frames they touch
         finish_frame(self._sums[:, 0], found, visible, acquired, 4.0 * p.min_area_px, float(ox), float(oy),
                      self._out_xy, self._out_cov, xy, conf, self._xy, self._vel, self._radius, self._coast,
-                     self._last_seen, int(p.max_coast_frames))
-        self._has_contour &= found
+                     self._last_seen, int(p.max_coast_frames), self._has_contour, p.label_by_shape and apart,
+                     self._apart_cov)
         self._offset = roi_xy
         return BlobFrame(xy, self._out_cov.copy(), self._out_area.copy(), conf)
 

@@ -76,7 +76,7 @@ def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_p
 
 @numba.njit(cache=True, nogil=True)
 def finish_frame(n_px, found, visible, acquired, full_px, ox, oy, roi_xy, cov, xy_img, conf, xy, vel, radius, coast,
-                 last_seen, max_coast):  # pragma: no cover - numba
+                 last_seen, max_coast, has_contour, keep_shape, apart_cov):  # pragma: no cover - numba
     """The end of a tracker's frame, for its K blobs.
 
     n_px (K,) labelled pixels, found / visible / acquired (K,) bool (visible: predicted
@@ -85,9 +85,14 @@ def finish_frame(n_px, found, visible, acquired, full_px, ox, oy, roi_xy, cov, x
     Writes xy_img (K, 2) the cues in image px and conf (K,) =
     min(1, n_px / full_px) x (0.5 if occluded) x (0.5 if acquired) x found, as
     ``BlobTracker.step`` computed them in NumPy (same operations, same order); then the track
-    state (``update_tracks``).
+    state (``update_tracks``). A blob not found loses its contour (``has_contour`` (K,) bool);
+    with ``keep_shape`` each found blob's cov is kept in ``apart_cov`` (K, 2, 2) (its shape
+    while apart from the others, ``BlobParams.label_by_shape``).
     """
     for k in range(found.shape[0]):
+        has_contour[k] = has_contour[k] and found[k]
+        if keep_shape and found[k]:
+            apart_cov[k] = cov[k]
         xy_img[k, 0] = roi_xy[k, 0] + ox
         xy_img[k, 1] = roi_xy[k, 1] + oy
         conf[k] = (min(1.0, n_px[k] / full_px) * (1.0 if visible[k] else 0.5) * (0.5 if acquired[k] else 1.0)
@@ -121,8 +126,9 @@ def label_frame(skin, sil, x0, y0, x1, y1, xy, vel, coast, radius, max_coast, pr
     (``label_and_refine``) in the box [x0, x1) x [y0, y1) ROI px.
 
     Writes centers (K, 2) ROI px and gate (K,) as used, ``label_and_refine``'s outputs and
-    found (K,) = at least ``kp``'s ``min_area_px`` pixels. Returns whether the blobs are
-    apart (each snapped onto its own region, or none near another; False without ``snap``).
+    found (K,) = at least ``kp``'s ``min_area_px`` pixels. Returns (whether the blobs are
+    apart: each snapped onto its own region, or none near another; False without ``snap``,
+    how many were found).
     """
     predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_pred, ox, oy, gp, centers, gate)
     apart = False
@@ -132,6 +138,8 @@ def label_frame(skin, sil, x0, y0, x1, y1, xy, vel, coast, radius, max_coast, pr
     label_and_refine(skin, sil, x0, y0, x1, y1, centers, gate, size, visible, kp, sums, out_xy, cov, area,
                      contours, has_contour, shape)
     min_area = kp[0].min_area_px
+    n_found = 0
     for k in range(found.shape[0]):
         found[k] = sums[k, 0] >= min_area
-    return apart
+        n_found += found[k]
+    return apart, n_found
