@@ -163,7 +163,7 @@ def snap_window(centers, gate, x0, y0, x1, y1, near_gates, window_gates):  # pra
 
 @numba.njit(cache=True, nogil=True)
 def snap_regions(stats, n_labels, wx0, wy0, centers, gate, min_area, max_regions, out):  # pragma: no cover
-    """Labelling centres moved onto the blobs' own colour regions (``BlobTracker._snap_to_regions``).
+    """Labelling centres moved onto the blobs' own colour regions (``track_kernels.snap_centres``).
 
     stats (n_labels, 7): ``colour_regions`` of the window whose top-left is (wx0, wy0) ROI px.
     Regions of >= ``min_area`` pixels that a predicted blob (``centers`` (K, 2) ROI

@@ -1,6 +1,7 @@
-"""Numba kernels of a blob tracker's 2D track state (seed digest A.2, A.4): each frame's
-labelling centres and gates from the track or the prediction, and its end (the cues in
-image pixels, their confidences, the updated tracks) in one call each.
+"""Numba kernels of a blob tracker's frame (seed digest A.2, A.4): the labelling centres and
+gates from the track or the prediction, the region snap and the labelling up to the cues
+(``label_frame``), and the frame's end (the cues in image pixels, their confidences, the
+updated tracks: ``finish_frame``), one call each.
 
 Coordinates: ``roi`` pixels where a name says so, else image pixels; speeds px / frame.
 """
@@ -122,8 +123,8 @@ def label_frame(skin, sil, x0, y0, x1, y1, xy, vel, coast, radius, max_coast, pr
     """A tracker frame up to its cues, in one call (``blobs.BlobTracker.step``): the labelling
     centres and gates (``predict_gates``), with ``snap`` the centres moved onto the blobs'
     own colour regions (``snap_centres``, settings ``near_gates`` ... ``snap_max_regions``),
-    then labelling and deformable ellipses
-    (``label_and_refine``) in the box [x0, x1) x [y0, y1) ROI px.
+    then labelling and deformable ellipses (``label_and_refine``) in the box [x0, x1) x
+    [y0, y1) ROI px.
 
     Writes centers (K, 2) ROI px and gate (K,) as used, ``label_and_refine``'s outputs and
     found (K,) = at least ``kp``'s ``min_area_px`` pixels. Returns (whether the blobs are
