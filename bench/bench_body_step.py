@@ -95,9 +95,9 @@ def main(argv: list[str] | None = None) -> int:
             cmed, c99 = float(np.median(t["cpu"])), float(np.percentile(t["cpu"], 99))
             fmed, f99 = float(np.median(t["fit_frame"])), float(np.percentile(t["fit_frame"], 99))
             steady = t["step"][~t["startup"]]
+            steady99 = float(np.percentile(steady, 99)) if steady.size else np.nan
             if sil:
-                rows.append((med, p99, cmed, c99, fmed, f99, float(np.percentile(steady, 99)) if steady.size else np.nan,
-                             float(t["step"][t["startup"]].max())))
+                rows.append((med, p99, cmed, c99, fmed, f99, steady99, float(t["step"][t["startup"]].max())))
             stages = ", ".join(f"{k} {np.median(v):.2f}" for k, v in t.items()
                                if k not in ("step", "cpu", "total", "fit_frame", "startup"))
             print(f"{clip.name[:32]:32s} {'yes' if sil else 'no':>11s} {med:7.2f} {p99:7.2f} {med / ys:6.1f} "

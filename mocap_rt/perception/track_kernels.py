@@ -102,7 +102,8 @@ def finish_frame(n_px, found, visible, acquired, full_px, ox, oy, roi_xy, cov, x
 
 
 @numba.njit(cache=True, nogil=True)
-def snap_centres(skin, x0, y0, x1, y1, centers, gate, near_gates, window_gates, min_area, max_regions):  # pragma: no cover
+def snap_centres(skin, x0, y0, x1, y1, centers, gate, near_gates, window_gates, min_area,
+                 max_regions):  # pragma: no cover - numba
     """The region snap (``blobs``, SNAP_*) of labelling centres (K, 2) ROI px, in place, in the box
     [x0, x1) x [y0, y1): ``snap_window``, its ``colour_regions``, ``snap_regions``. Returns
     whether the blobs are apart: none near another (no window), or each snapped onto its own region."""
