@@ -25,9 +25,12 @@ head when, measured in its own equivalent radius ``sqrt(area / pi)``, it lies
 ``HEAD_ALONG_RADII`` along and within ``HEAD_ACROSS_RADII`` across the axis (a hand is half
 the head's size, so at the head's place it is twice as many of its own radii away; a hand
 overhead is farther still, hands at the chest nearer). A head label that fails the test
-for ``HEAD_CHECK_FRAMES`` frames in a row moves to the skin region that passes it best.
-The axis is the ridge band's principal axis pointing up the image (the image vertical when
-the band is not elongated).
+for ``HEAD_CHECK_FRAMES`` frames in a row moves to the skin region that passes it best, of
+those at least ``RESEAT_MIN_AREA_FRAC`` of the head's recent area (a hand is about a quarter of
+it). The axis is the ridge band's principal axis pointing up the image (the image vertical
+when the band is not elongated); an arm raised beside the head tilts it (37 deg on the
+Bandai bye-bye, one view), the head then fails the test and a hand beside the face passes
+it: without the size condition the head label went to that hand for 0.7 s.
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ HEAD_ALONG_RADII = (2.3, 6.5)    # a head lies this far along the trunk axis fro
 HEAD_ACROSS_RADII = 1.2          # ... and at most this far across it
 HEAD_CHECK_FRAMES = 3        # a head label failing the test this many frames in a row is re-seated
 MIN_HEAD_AREA_PX = 30.0      # smallest skin region considered as a head
+RESEAT_MIN_AREA_FRAC = 0.5   # ... and, once the head's size is known, at least this fraction of its area
 ELONGATED = 1.5              # ridge band axis used when its two standard deviations differ by this ratio
 
 
@@ -133,24 +137,29 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
     state.suspect_frames += 1
     if state.suspect_frames < HEAD_CHECK_FRAMES:
         return None
-    best = _best_head_region(skin, ridge_xy - origin, up)
+    r = state.head_radius()
+    min_area = MIN_HEAD_AREA_PX
+    if math.isfinite(r):
+        min_area = max(min_area, RESEAT_MIN_AREA_FRAC * math.pi * r * r)
+    best = _best_head_region(skin, ridge_xy - origin, up, min_area)
     if best is None:
         return None
     state.suspect_frames = 0
     return best[0] + origin, best[1]
 
 
-def _best_head_region(skin: np.ndarray, ridge_xy: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """(centroid (2,) array px, area px^2) of the connected skin region of ``skin`` (h, w)
-    that passes the head test best (``head_score``), or None. The regions are the blob
-    stage's (``region_kernels.colour_regions``: ``cv2.connectedComponents``' order, so ties
-    go the same way)."""
+def _best_head_region(skin: np.ndarray, ridge_xy: np.ndarray, up: np.ndarray,
+                      min_area: float = MIN_HEAD_AREA_PX) -> tuple[np.ndarray, float] | None:
+    """(centroid (2,) array px, area px^2) of the connected skin region of ``skin`` (h, w) of
+    at least ``min_area`` px^2 that passes the head test best (``head_score``), or None. The
+    regions are the blob stage's (``region_kernels.colour_regions``: ``cv2.connectedComponents``'
+    order, so ties go the same way)."""
     h, w = skin.shape
     n, stats = colour_regions(skin, 0, 0, w, h)
     best, best_score = None, np.inf
     for i in range(1, n):
         area = float(stats[i, 4])
-        if area >= MIN_HEAD_AREA_PX:
+        if area >= min_area:
             cent = stats[i, 5:7] / area
             score = head_score(cent, area, ridge_xy, up)
             if score < best_score:

@@ -60,6 +60,32 @@ def test_a_head_label_on_a_hand_is_re_seated_after_a_few_frames():
     assert abs(area - (skin[:, :120] > 0).sum()) < 1e-9
 
 
+def test_a_head_failing_on_a_tilted_axis_is_not_re_seated_on_a_hand():
+    """An arm raised beside the head tilts the ridge band's axis: the head (radius 10) fails the
+    test there, and only a hand-sized region beside the face passes it; the head label stays
+    (the Bandai bye-bye, one view: the label went to the hand for 0.7 s)."""
+    skin = np.zeros((200, 160), np.float32)
+    cv2.circle(skin, (80, 40), 10, 1.0, -1)                    # head, radius 10
+    cv2.circle(skin, (55, 60), 5, 1.0, -1)                     # a hand beside the face
+    a = np.deg2rad(37.0)
+    axis = np.array([-np.sin(a), -np.cos(a)])                  # up the tilted axis
+    ridge = np.array([55.0, 60.0]) - 3.0 * 5.0 * axis          # the hand lies 3 of its radii up it
+    cov = 400.0 * np.outer(axis, axis) + 30.0 * np.eye(2)
+    up = trunk_up(cov)
+    np.testing.assert_allclose(up, axis, atol=1e-9)
+    head = np.array([80.0, 40.0])
+    assert head_score(head, np.pi * 100, ridge, up) == np.inf                # the head fails on this axis ...
+    assert np.isfinite(head_score(np.array([55.0, 60.0]), np.pi * 25, ridge, up))   # ... the hand passes
+    state = SceneState()
+    state.radii.extend([10.0] * 5)                              # the head's size, known
+    out = [check_head(state, head, np.pi * 100, 1.0, ridge, cov, skin, (0, 0)) for _ in range(HEAD_CHECK_FRAMES + 2)]
+    assert all(o is None for o in out)
+    # the size is what decides: a state that does not know it yet re-seats on the hand
+    fresh = SceneState()
+    out = [check_head(fresh, head, np.pi * 100, 1.0, ridge, cov, skin, (0, 0)) for _ in range(HEAD_CHECK_FRAMES)]
+    np.testing.assert_allclose(out[-1][0], (55.0, 60.0), atol=0.5)
+
+
 def test_pipeline_brings_the_head_back_from_a_hand():
     sc = make_scene(shadow=0.5)
     p = CameraPerceiver(ring_rig()[0], sc.background)
