@@ -173,7 +173,7 @@ class BlobTracker:
         use_pred = pred_xy is not None
         visible = self._all_visible if pred_visible is None else np.asarray(pred_visible, np.bool_)
         sil = sil_roi if sil_roi is not None else _NO_SIL
-        mirror = p.mirror_iters if sil_roi is not None else 0
+        kp = self._kp if sil_roi is not None and p.mirror_iters else self._kp_nomirror
         box = (bx, by, bx + bw, by + bh)
         centers, gate, found = self._centers, self._gate, self._found
         apart, n_found = label_frame(
@@ -181,7 +181,7 @@ class BlobTracker:
             np.asarray(pred_xy, np.float64) if use_pred else _NAN_K2,
             np.asarray(pred_radius, np.float64) if use_pred and pred_radius is not None else _NAN_K,
             use_pred, float(ox), float(oy), self._gate_params, p.snap_to_regions, SNAP_NEAR_GATES, SNAP_WINDOW_GATES,
-            p.acquire_min_area_px, SNAP_MAX_REGIONS, self._size, visible, self._kp if mirror else self._kp_nomirror,
+            p.acquire_min_area_px, SNAP_MAX_REGIONS, self._size, visible, kp,
             self._sums, self._out_xy, self._out_cov, self._out_area, self._out_contours, self._has_contour,
             self._shape_arg, centers, gate, found)
         acquired = self._none_acquired
@@ -190,7 +190,7 @@ class BlobTracker:
             if acquired.any():
                 centers = np.where(acquired[:, None], self._acq_centers, centers)
                 gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
-                found = self._run(skin_roi, sil, box, centers, gate, visible, mirror)
+                found = self._run(skin_roi, sil, box, centers, gate, visible, kp)
         xy, conf = np.empty((K, 2)), np.empty(K)
         # with label_by_shape and the blobs apart (each blob's pixels its own region): their shapes
         # are kept for the frames they touch
@@ -207,15 +207,13 @@ class BlobTracker:
         offset = np.array(self._offset, np.float64)
         return [c + offset if has else None for c, has in zip(self._out_contours, self._has_contour.tolist())]
 
-    def _run(self, skin_roi, sil, box, centers, gate, visible, mirror) -> np.ndarray:
-        p = self.params
-        kp = self._kp if mirror else self._kp_nomirror
+    def _run(self, skin_roi, sil, box, centers, gate, visible, kp) -> np.ndarray:
         label_and_refine(skin_roi, sil, box[0], box[1], box[2], box[3], np.ascontiguousarray(centers, np.float64),
                          np.ascontiguousarray(gate, np.float64), self._size, visible,
                          kp, self._sums, self._out_xy,
                          self._out_cov, self._out_area, self._out_contours, self._has_contour,
                          self._shape_arg)
-        return self._sums[:, 0] >= p.min_area_px
+        return self._sums[:, 0] >= self.params.min_area_px
 
     # ------------------------------------------------------------------ internals
     def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:

@@ -149,7 +149,7 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
 
 
 def _best_head_region(skin: np.ndarray, ridge_xy: np.ndarray, up: np.ndarray,
-                      min_area: float = MIN_HEAD_AREA_PX) -> tuple[np.ndarray, float] | None:
+                      min_area: float) -> tuple[np.ndarray, float] | None:
     """(centroid (2,) array px, area px^2) of the connected skin region of ``skin`` (h, w) of
     at least ``min_area`` px^2 that passes the head test best (``head_score``), or None. The
     regions are the blob stage's (``region_kernels.colour_regions``: ``cv2.connectedComponents``'
