@@ -159,15 +159,17 @@ def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray
         return fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=config.pan_search_deg,
                           pan_refine=config.pan_refine, feet=F).cost
 
-    costs = np.array([cost(h, False) for h in range(1 + len(ALTERNATIVES))])
-    if feet is not None:
-        # the legs score the facing: the current labelling and the mirror with them; the single
-        # swaps keep their difference to the current one without them (each pan fitted to its
-        # own objective)
-        with_legs = cost(0, True)
-        single = [1 + k for k in _SINGLE]
-        costs[single] += with_legs - costs[0]
-        costs[0], costs[1 + _MIRROR] = with_legs, cost(1 + _MIRROR, True)
+    if feet is None:
+        return np.array([cost(h, False) for h in range(1 + len(ALTERNATIVES))])
+    # the legs score the facing: the current labelling and the mirror with them; the single
+    # swaps keep their difference to the current one without them (each pan fitted to its
+    # own objective)
+    costs = np.empty(1 + len(ALTERNATIVES))
+    single = [1 + k for k in _SINGLE]
+    costs[single] = [cost(h, False) for h in single]
+    with_legs = cost(0, True)
+    costs[single] += with_legs - cost(0, False)
+    costs[0], costs[1 + _MIRROR] = with_legs, cost(1 + _MIRROR, True)
     return costs
 
 
