@@ -149,6 +149,11 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
     rb = np.empty(K)
     za = np.empty(K)
     zb = np.empty(K)
+    Q = outline.shape[1]
+    qu = np.empty(Q)
+    qv = np.empty(Q)
+    best = np.empty(Q)
+    best_z = np.empty(Q)
     total = 0.0
     n_views = 0
     cap2 = CAP_M * CAP_M
@@ -182,33 +187,31 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
                 dm = d * step * z / fc
                 s_model += min(dm * dm, cap2)
                 n_model += 1
+        # image -> model: each outline point's nearest capsule surface (the first of equal
+        # ones), capsule by capsule over all the points (a loop the compiler vectorises)
+        nq = n_outline[c]
+        for q in range(nq):
+            qu[q] = outline[c, q, 0]
+            qv[q] = outline[c, q, 1]
+            best[q] = 1e30
+            best_z[q] = 3.0
+        for k in range(K):
+            if not (np.isfinite(ua[k]) and np.isfinite(ub[k])):
+                continue
+            du, dv = ub[k] - ua[k], vb[k] - va[k]
+            L2 = du * du + dv * dv
+            a_u, a_v, r0, dr, z0, dz = ua[k], va[k], ra[k], rb[k] - ra[k], za[k], zb[k] - za[k]
+            seg = L2 > 1e-12
+            for q in range(nq):
+                t = min(1.0, max(0.0, ((qu[q] - a_u) * du + (qv[q] - a_v) * dv) / L2)) if seg else 0.0
+                eu, ev = qu[q] - a_u - t * du, qv[q] - a_v - t * dv
+                d = np.sqrt(eu * eu + ev * ev) - (r0 + t * dr)
+                nearer = d < best[q]
+                best_z[q] = z0 + t * dz if nearer else best_z[q]
+                best[q] = d if nearer else best[q]
         s_out = 0.0
-        for q in range(n_outline[c]):
-            qu, qv = outline[c, q, 0], outline[c, q, 1]
-            best = 1e30
-            best_z = 3.0
-            for k in range(K):
-                if not (np.isfinite(ua[k]) and np.isfinite(ub[k])):
-                    continue
-                # lower bound: the distance to the capsule's bounding box (skip if no better)
-                rmax = max(ra[k], rb[k])
-                bx = max(0.0, min(ua[k], ub[k]) - rmax - qu, qu - max(ua[k], ub[k]) - rmax)
-                by = max(0.0, min(va[k], vb[k]) - rmax - qv, qv - max(va[k], vb[k]) - rmax)
-                if bx * bx + by * by >= best * best and best > 0.0:
-                    continue
-                du, dv = ub[k] - ua[k], vb[k] - va[k]
-                L2 = du * du + dv * dv
-                t = 0.0
-                if L2 > 1e-12:
-                    t = min(1.0, max(0.0, ((qu - ua[k]) * du + (qv - va[k]) * dv) / L2))
-                eu, ev = qu - ua[k] - t * du, qv - va[k] - t * dv
-                d = np.sqrt(eu * eu + ev * ev) - (ra[k] + t * (rb[k] - ra[k]))
-                if d < best:
-                    best = d
-                    best_z = za[k] + t * (zb[k] - za[k])
-            if best < 0.0:
-                best = 0.0
-            dm = best * best_z / fc
+        for q in range(nq):
+            dm = max(best[q], 0.0) * best_z[q] / fc
             s_out += min(dm * dm, cap2)
         if n_model > 0:
             total += s_model / n_model

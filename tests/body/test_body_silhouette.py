@@ -111,6 +111,42 @@ def test_the_true_body_fits_its_silhouettes_and_a_turned_one_does_not(walk, rend
         assert bad > 10 * good
 
 
+def test_the_outline_term_is_each_points_distance_to_the_nearest_capsule_surface(walk, rendered):
+    """The image -> model half of the cost against a brute-force numpy oracle: per outline
+    point, the least distance to a projected capsule (segment distance less the radius
+    interpolated along it, 0 inside), scaled to metres at that capsule point's depth, squared
+    and capped; mean over the points, mean over the views. The half is isolated as the cost
+    with the outline points less the cost without them."""
+    rig, frames = rendered
+    rng = np.random.default_rng(5)
+    A, B = np.empty((S.N_CAPSULES, 3)), np.empty((S.N_CAPSULES, 3))
+    for f, cues in frames.items():
+        T = S.SilhouetteTargets.from_cues(rig.cameras, cues)
+        P, fc, grid, dt, dt_off, outline, n_outline = T.args()
+        outline = outline + rng.normal(0.0, 6.0, outline.shape)      # points off the surface too
+        S.body_capsules(walk.points[f] + rng.normal(0.0, 0.02, walk.points[f].shape), A, B)
+        with_pts = S.capsules_cost(A, B, S.CAPSULE_RADII_M, P, fc, grid, dt, dt_off, outline, n_outline)
+        without = S.capsules_cost(A, B, S.CAPSULE_RADII_M, P, fc, grid, dt, dt_off, outline, 0 * n_outline)
+        views = []
+        for c in range(len(P)):
+            def project(X):
+                h = np.c_[X, np.ones(len(X))] @ P[c].T
+                return h[:, :2] / h[:, 2:], h[:, 2]
+            (ua, za), (ub, zb) = project(A), project(B)
+            ra, rb = fc[c] * S.CAPSULE_RADII_M / za, fc[c] * S.CAPSULE_RADII_M / zb
+            q = outline[c, :n_outline[c]]
+            d_ab = ub - ua
+            t = np.clip(np.einsum("qkx,kx->qk", q[:, None] - ua[None], d_ab) / (d_ab ** 2).sum(1), 0.0, 1.0)
+            near = ua[None] + t[..., None] * d_ab[None]
+            d = np.linalg.norm(q[:, None] - near, axis=2) - (ra + t * (rb - ra))
+            k = d.argmin(axis=1)
+            i = np.arange(len(q))
+            dm = np.maximum(d[i, k], 0.0) * (za[k] + t[i, k] * (zb - za)[k]) / fc[c]
+            views.append(np.minimum(dm ** 2, S.CAP_M ** 2).mean())
+        assert n_outline.min() > 10
+        np.testing.assert_allclose(with_pts - without, np.mean(views), rtol=1e-9)
+
+
 def test_fit_brings_a_wrong_heading_back(walk, rendered):
     """Start 40 deg off the true heading: the silhouettes bring the pan back within 15 deg
     (the truth's heading averages hips and shoulders, which counter-rotate in a walk; the
