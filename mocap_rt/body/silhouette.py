@@ -233,28 +233,29 @@ def _prepare(mask, pad, background, outline, x0, y0, step):
     cells (a set cell with a 4-neighbour unset, evenly taken in raster order) as pixel
     centres; return the number of outline points."""
     h, w = mask.shape
+    border = np.empty(h * w, np.int64)      # the outline cells, raster order
     n = 0
     for y in range(h):
         for x in range(w):
-            background[y + pad, x + pad] = 0 if mask[y, x] else 1
-            if mask[y, x] and (x == 0 or y == 0 or x == w - 1 or y == h - 1 or not mask[y, x - 1]
-                               or not mask[y, x + 1] or not mask[y - 1, x] or not mask[y + 1, x]):
+            m = mask[y, x]
+            background[y + pad, x + pad] = 0 if m else 1
+            if m and (x == 0 or y == 0 or x == w - 1 or y == h - 1 or not mask[y, x - 1]
+                      or not mask[y, x + 1] or not mask[y - 1, x] or not mask[y + 1, x]):
+                border[n] = y * w + x
                 n += 1
     q = outline.shape[0]
     every = max(1.0, n / q)
     k = 0
-    i = 0
     nxt = 0.0
-    for y in range(h):
-        for x in range(w):
-            if mask[y, x] and (x == 0 or y == 0 or x == w - 1 or y == h - 1 or not mask[y, x - 1]
-                               or not mask[y, x + 1] or not mask[y - 1, x] or not mask[y + 1, x]):
-                if i >= nxt and k < q:
-                    outline[k, 0] = x0 + step * x + 0.5 * (step - 1)
-                    outline[k, 1] = y0 + step * y + 0.5 * (step - 1)
-                    k += 1
-                    nxt += every
-                i += 1
+    for i in range(n):
+        if k >= q:
+            break
+        if i >= nxt:
+            y, x = divmod(border[i], w)
+            outline[k, 0] = x0 + step * x + 0.5 * (step - 1)
+            outline[k, 1] = y0 + step * y + 0.5 * (step - 1)
+            k += 1
+            nxt += every
     return k
 
 
