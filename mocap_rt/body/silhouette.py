@@ -149,6 +149,11 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
     rb = np.empty(K)
     za = np.empty(K)
     zb = np.empty(K)
+    su = np.empty(K * AXIS_SAMPLES)
+    sv = np.empty(K * AXIS_SAMPLES)
+    sz = np.empty(K * AXIS_SAMPLES)
+    cell = np.empty(K * AXIS_SAMPLES, np.int64)
+    beyond = np.empty(K * AXIS_SAMPLES)
     Q = outline.shape[1]
     qu = np.empty(Q)
     qv = np.empty(Q)
@@ -163,7 +168,7 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
         x0, y0, step, gh, gw = grid[c, 1], grid[c, 2], grid[c, 3], grid[c, 4], grid[c, 5]
         off = dt_off[c]
         fc = f[c]
-        s_model = 0.0
+        # model -> image: the distance transform at samples along each projected axis
         n_model = 0
         for k in range(K):
             ua[k], va[k], za[k] = _project(P[c], A[k])
@@ -174,19 +179,23 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
                 continue
             for si in range(AXIS_SAMPLES):
                 t = si / (AXIS_SAMPLES - 1)
-                u = ua[k] + t * (ub[k] - ua[k])
-                v = va[k] + t * (vb[k] - va[k])
-                z = za[k] + t * (zb[k] - za[k])
-                # cell coordinates in the padded grid
-                gx = (u - x0 - 0.5 * (step - 1)) / step + PAD_CELLS
-                gy = (v - y0 - 0.5 * (step - 1)) / step + PAD_CELLS
-                ix = min(max(int(np.floor(gx + 0.5)), 0), gw - 1)
-                iy = min(max(int(np.floor(gy + 0.5)), 0), gh - 1)
-                d = dt[off + iy * gw + ix] + np.sqrt((gx - ix) ** 2 + (gy - iy) ** 2) * (
-                    1.0 if (gx < 0 or gy < 0 or gx > gw - 1 or gy > gh - 1) else 0.0)
-                dm = d * step * z / fc
-                s_model += min(dm * dm, cap2)
+                su[n_model] = ua[k] + t * (ub[k] - ua[k])
+                sv[n_model] = va[k] + t * (vb[k] - va[k])
+                sz[n_model] = za[k] + t * (zb[k] - za[k])
                 n_model += 1
+        for j in range(n_model):       # the samples' cells in the padded grid (vectorised)
+            gx = (su[j] - x0 - 0.5 * (step - 1)) / step + PAD_CELLS
+            gy = (sv[j] - y0 - 0.5 * (step - 1)) / step + PAD_CELLS
+            ix = min(max(int(np.floor(gx + 0.5)), 0), gw - 1)
+            iy = min(max(int(np.floor(gy + 0.5)), 0), gh - 1)
+            cell[j] = off + iy * gw + ix
+            # beyond the grid: plus the distance to its border cell
+            beyond[j] = np.sqrt((gx - ix) ** 2 + (gy - iy) ** 2) * (
+                1.0 if (gx < 0 or gy < 0 or gx > gw - 1 or gy > gh - 1) else 0.0)
+        s_model = 0.0
+        for j in range(n_model):
+            dm = (dt[cell[j]] + beyond[j]) * step * sz[j] / fc
+            s_model += min(dm * dm, cap2)
         # image -> model: each outline point's nearest capsule surface (the first of equal
         # ones), capsule by capsule over all the points (a loop the compiler vectorises)
         nq = n_outline[c]
