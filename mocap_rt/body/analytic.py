@@ -48,6 +48,7 @@ class AnalyticConfig:
     knee_open_deg: float = 5.0      # pole of the knee rotated outwards from straight forward
     elbow_pole_candidates: int = 12  # an arm out of range: its pole turned in 360/N deg steps (0 = off), _arm_pole
     elbow_twist_cost: float = 0.1    # ... per degree of shoulder twist (Euler Z) vs degrees of limit violation
+    elbow_turn_cost: float = 0.7     # ... per degree the pole turned, where the elbow is measured on the silhouettes
     feet_weight: float = 0.5        # weight of the feet's left->right vector for the pan
     hands_weight: float = 1.0       # weight of the hands' left->right vector
     walk_speed_mps: float = 0.4     # above this torso speed the walking direction counts
@@ -127,15 +128,22 @@ def pan_angle(axes: np.ndarray) -> float:
     return float(np.arctan2(-f[0], f[1]))
 
 
+# ``_analytic``'s ``views`` when there are none (``silhouette.SilhouetteTargets.args``' first five)
+NO_VIEWS = (np.zeros((1, 3, 4)), np.ones(1), np.zeros((1, 6), np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64))
+
+
 @njit(cache=True, nogil=True)
-def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R):
+def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R, views, w_elbow):
     """Fill the joint frames R (J, 3, 3); return the pelvis position (see analytic_pose).
 
-    poles : (5,) elbow_raise, elbow_down, knee_open (radians), elbow pole candidates (a
-    count, 0 = the fixed pole) and twist cost (``limb_args``); arm_lim : (2, 3, 2) radians,
+    poles : (6,) elbow_raise, elbow_down, knee_open (radians), elbow pole candidates (a
+    count, 0 = the fixed pole), twist cost and turn cost (``limb_args``); arm_lim : (2, 3, 2) radians,
     the shoulders' (lo, hi) X-Y-Z limits (left, right). swivel : (4,) radians, extra
     rotation of each limb's pole about the root -> goal line (arm_l, arm_r, leg_l, leg_r),
-    relative to the fixed pole; then an arm still out of range takes ``_arm_pole``'s.
+    relative to the fixed pole; then an arm still out of range takes ``_arm_pole``'s, or with
+    ``w_elbow`` > 0 every arm takes the pole ``_arm_pole`` chooses with its elbow measured
+    against the silhouettes ``views`` (P, f, grid, dt, dt_off; ``NO_VIEWS``: none), weighted
+    ``w_elbow`` per m^2 of mean squared distance outside them.
     """
     elbow_raise, elbow_down, knee_open = poles[0], poles[1], poles[2]
     n_poles = int(poles[3])
@@ -167,7 +175,8 @@ def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swive
         if swivel[s] != 0.0 and d @ d > 1e-12:
             pole = _rot_about(d, swivel[s], pole)
         if n_poles > 1 and d @ d > 1e-12:
-            pole = _arm_pole(shoulder, cues[hand_c], upper_len, fore_len, pole, axes, arm_lim[s], n_poles, poles[4])
+            pole = _arm_pole(shoulder, cues[hand_c], upper_len, fore_len, pole, axes, arm_lim[s], n_poles, poles[4],
+                             views, w_elbow, poles[5])
         elbow, hand, u, w = _two_link(shoulder, cues[hand_c], upper_len, fore_len, pole)
         x = _cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
         _frame(elbow - shoulder, x, R[jsh])
@@ -220,28 +229,32 @@ _LIMB_JOINTS = np.array([[J[f"{n}_{s}"] for n in ("shoulder", "elbow", "wrist", 
 def limb_args(model: BodyModel, config: AnalyticConfig,
               elbow_pole_search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The arrays ``_analytic`` takes: lengths (8,) metres (trunk, shoulder half width,
-    upper arm, forearm + hand, hip half width, thigh, shank, foot), poles (5,) (elbow
+    upper arm, forearm + hand, hip half width, thigh, shank, foot), poles (6,) (elbow
     raise, elbow down, knee open radians; elbow pole candidates, 0 without
-    ``elbow_pole_search``; twist cost), arm_lim (2, 3, 2) radians (the shoulders' limits,
+    ``elbow_pole_search``; twist cost; turn cost), arm_lim (2, 3, 2) radians (the shoulders' limits,
     left then right) and foot_rest (3,) (the foot's rest direction, body frame)."""
     L = model.lengths
     lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
                         L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
     poles = np.array([np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
                       np.radians(config.knee_open_deg),
-                      float(config.elbow_pole_candidates) if elbow_pole_search else 0.0, config.elbow_twist_cost])
+                      float(config.elbow_pole_candidates) if elbow_pole_search else 0.0, config.elbow_twist_cost,
+                      config.elbow_turn_cost])
     arm_lim = np.ascontiguousarray(model.limits[_LIMB_JOINTS[:, 0]])
     return lengths, poles, arm_lim, np.ascontiguousarray(model.rest_world[J["ankle_r"]][:, 2])
 
 
 def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
                   config: AnalyticConfig = AnalyticConfig(),
-                  swivel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  swivel: np.ndarray | None = None, views: tuple = NO_VIEWS,
+                  w_elbow: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Pose from the six cues: ``(root_pos (3,), angles (J, 3) radians)``.
 
     swivel : (4,) radians about each limb's root -> goal line (arm_l, arm_r, leg_l, leg_r)
     added to the fixed poles (see ``refine_swivel``); default none. An arm then out of its
-    shoulder's range is re-bent (``AnalyticConfig.elbow_pole_candidates``, ``_arm_pole``).
+    shoulder's range is re-bent (``AnalyticConfig.elbow_pole_candidates``, ``_arm_pole``);
+    with ``views`` (``SilhouetteTargets.args()[:5]``) and ``w_elbow`` > 0 (per m^2) every arm
+    takes its elbow on the silhouettes, as ``BodyFitter`` scores it.
 
     cues : (6, 3) metres, world, all finite (the tracker fills gaps from its filter).
     axes : (3, 3) body frame from ``body_axes`` (columns right, forward, up).
@@ -249,7 +262,7 @@ def analytic_pose(model: BodyModel, cues: np.ndarray, axes: np.ndarray,
     R = np.empty((N_JOINTS, 3, 3))
     pelvis = _analytic(np.ascontiguousarray(cues, dtype=np.float64), np.ascontiguousarray(axes, dtype=np.float64),
                        *limb_args(model, config), _LIMB_JOINTS,
-                       np.zeros(4) if swivel is None else np.asarray(swivel, np.float64), R)
+                       np.zeros(4) if swivel is None else np.asarray(swivel, np.float64), R, views, w_elbow)
     angles = np.empty((N_JOINTS, 3))
     _angles_from_frames(model.parents, model.rest_local, model.dof, R, angles)
     return pelvis, angles
@@ -271,7 +284,7 @@ def _pan_search(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swi
         f = _cross(up, r)
         for i in range(3):
             axc[i, 0], axc[i, 1], axc[i, 2] = r[i], f[i], up[i]
-        _analytic(cues, axc, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R)
+        _analytic(cues, axc, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R, NO_VIEWS, 0.0)
         _angles_from_frames(parents, rest_local, dof, R, ang)
         viol = 0.0
         for j in range(1, J):
@@ -317,7 +330,7 @@ def _swivel_search(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, 
     for k in range(-n_steps, n_steps + 1):
         for i in range(4):
             sw[i] = prev[i] + step * k
-        _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, sw, R)
+        _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, sw, R, NO_VIEWS, 0.0)
         _angles_from_frames(parents, rest_local, dof, R, ang)
         for limb in range(4):
             side = limb % 2

@@ -18,6 +18,13 @@ value (the others held). The limits act as bounds through the violation term, wh
 dominates (a degree of violation costs as much as 1 cm^2 of silhouette disagreement).
 A mirrored body cannot reach the silhouette's knees and elbows within the limits, which
 is what makes ``score`` tell the identity hypotheses apart (``fusion.identity``).
+
+Each candidate's elbows are measured too (``elbow_silhouette``): of the elbow poles turned
+about shoulder -> hand (``AnalyticConfig.elbow_pole_candidates``), each arm takes the one of
+least shoulder violation + twist + the silhouette distance of its upper arm, elbow and
+forearm + ``AnalyticConfig.elbow_turn_cost`` per degree turned from the default pole
+("backwards and down", a hanging arm's prior; ``limb_geometry._arm_pole``). Without views
+the default pole stays.
 """
 
 from __future__ import annotations
@@ -51,6 +58,7 @@ class FitConfig:
     swivel_change_cost: float = 0.05   # per degree changed since the previous frame
     swivel_prior_cost: float = 0.1     # per degree away from the default pole
     foot_axis_weight: float = 1.0      # per cm^2 of shoe axis off the measured blob axes (body.foot_axis)
+    elbow_silhouette: bool = True      # each arm's elbow pole chosen with the elbow on the silhouettes (module doc)
 
 
 @njit(cache=True, nogil=True)
@@ -59,7 +67,8 @@ def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joint
               rot, points, A, B):
     """(limit violation degrees, silhouette cost cm^2, foot-axis cost cm^2) of the analytic pose
     for ``axes``, ``swivel``; a term whose weight is 0 is not computed (0)."""
-    pelvis = _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R)
+    pelvis = _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R, (P, f, grid, dt, dt_off),
+                       w_sil * M2_TO_CM2)
     _angles_from_frames(parents, rest_local, dof, R, ang)
     viol = 0.0
     for j in range(1, parents.shape[0]):
@@ -167,23 +176,25 @@ class BodyFitter:
         if model.preset != "paper":
             raise ValueError("BodyFitter works on the analytic ('paper') model")
         self.config = config
-        # lengths, the fixed poles (the search is the final pose's, see analytic._arm_pole), arm limits,
-        # foot rest direction (analytic.limb_args), then the model's arrays
-        self._model_args = (*limb_args(model, analytic, elbow_pole_search=False), _LIMB_JOINTS, model.parents,
-                            model.offsets, model.rest_local, model.dof,
-                            np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
-                            float(np.radians(model.lengths.foot_pitch_deg)), CAPSULE_RADII_M)
+        # lengths, poles (searched with the elbow on the silhouettes, or the fixed pole), arm limits,
+        # foot rest direction (analytic.limb_args), then the model's arrays; without views the fixed pole
+        model_arrays = (_LIMB_JOINTS, model.parents, model.offsets, model.rest_local, model.dof,
+                        np.ascontiguousarray(model.limits[..., 0]), np.ascontiguousarray(model.limits[..., 1]),
+                        float(np.radians(model.lengths.foot_pitch_deg)), CAPSULE_RADII_M)
+        self._fixed_args = (*limb_args(model, analytic, elbow_pole_search=False), *model_arrays)
+        self._model_args = (*limb_args(model, analytic, elbow_pole_search=config.elbow_silhouette), *model_arrays)
 
     def fit(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
             targets: SilhouetteTargets | None, search_swivel: bool = True, pan_search_deg: float | None = None,
             pan_step_deg: float | None = None, pan_refine: int | None = None,
-            feet: np.ndarray | None = None) -> FitResult:
+            feet: np.ndarray | None = None, measured_elbows: bool = True) -> FitResult:
         """Best pan and swivels for cues (6, 3) (all finite, metres, world) from ``axes``
         (3, 3) and the previous ``swivel`` (4,) radians; ``targets`` None = limits only.
         The pan is searched within +-``pan_search_deg`` in steps of ``pan_step_deg``, then
         refined ``pan_refine`` times (defaults: the config's). ``feet`` (6, C, N_FOOT_COLS): the
         measured shoe axes of ``targets``' cameras labelled like ``cues``
-        (``foot_axis.foot_axes``); used with ``targets`` only (they carry the projection)."""
+        (``foot_axis.foot_axes``); used with ``targets`` only (they carry the projection).
+        ``measured_elbows`` False: the fixed elbow pole even with views (``elbow_silhouette``)."""
         c = self.config
         pan_deg = c.pan_search_deg if pan_search_deg is None else pan_search_deg
         step = c.pan_step_deg if pan_step_deg is None else pan_step_deg
@@ -203,7 +214,8 @@ class BodyFitter:
                       c.swivel_prior_cost, c.foot_axis_weight if use_feet else 0.0])
         n_sw = int(c.swivel_search_deg // c.swivel_step_deg) if (search_swivel and c.swivel_step_deg > 0) else 0
         sw0 = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
-        _fit(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64), sw0, *self._model_args,
+        model_args = self._model_args if (have and measured_elbows) else self._fixed_args
+        _fit(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64), sw0, *model_args,
              *sil_args, feet2, w, offsets,
              c.pan_refine if pan_refine is None else pan_refine, n_sw, np.radians(c.swivel_step_deg), out_axes, out_sw,
              terms)

@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from mocap_rt.body.kinematics import other_xyz_name
+from mocap_rt.body.silhouette import points_cost
 
 # Relative reach below which a limb is treated as folded (avoids the |L1 - L2| singularity).
 MIN_REACH_FRAC = 0.05
@@ -154,35 +155,55 @@ def _viol3(x, y, z, lo, hi):
 
 
 @njit(cache=True, nogil=True)
-def _arm_pole(shoulder, hand, L1, L2, pole, axes, lim, n, twist_cost):
-    """The elbow's pole (3,) for the two-link arm shoulder -> hand (metres, world; L1, L2
-    the upper arm and forearm + hand): ``pole`` while its solution keeps the shoulder
-    within ``lim`` (3, 2) radians (``_viol3``: either name of the rotation), else ``pole``
-    turned about shoulder -> hand by the k * 360/n deg (k < n) that minimises the shoulder's
-    violation (deg) + ``twist_cost`` * |twist| (deg; the Euler Z of the |Y| <= 90 deg name):
-    among arms within the limits, the one nearest the neutral rotation. The elbow's flexion
-    is fixed by the reach, not the pole, so the shoulder decides alone. ``axes`` (3, 3)
-    the trunk's (right, forward, up) columns. Why: the fixed pole ("backwards and down") is
-    the hanging arm's; a hand at the face or on the head bends the elbow out or forwards.
-
-    No arrays per candidate: with u = unit(hand - shoulder), w0 the pole's part normal to
-    u and v0 = u x w0, ``_two_link`` bent towards the pole turned by t has the upper arm
-    z = ca u + sa w, w = cos t w0 + sin t v0, and ``_frame`` gives x = w x u = sin t w0 -
-    cos t v0, y = z x x = ca w - sa u (ca, sa: cosine and sine of the angle at the shoulder);
-    the shoulder's matrix relative to the trunk at rest (columns right, -forward, -up) is
-    read from their dot products with the body axes, as ``euler_xyz_from_matrix`` does.
-    """
+def _pole_circle(shoulder, hand, L1, L2, pole):
+    """The circle of the elbow about shoulder -> hand: (d = hand - shoulder, u = unit(d), w0 =
+    the pole's unit part normal to u, v0 = u x w0, ca, sa = cosine and sine of the upper arm's
+    angle to u); the elbow bent towards the pole turned by t about d is
+    shoulder + L1 (ca u + sa (cos t w0 + sin t v0)) (``_two_link``). u is NaN when the circle
+    is undefined (hand on the shoulder, or the pole along the arm)."""
     d = hand - shoulder
     dist = np.sqrt(d @ d)
     w0 = pole - d * ((pole @ d) / max(dist * dist, 1e-300))
     nw = np.sqrt(w0 @ w0)
     if dist < 1e-9 or nw < 1e-9:
-        return pole
+        nan = np.full(3, np.nan)
+        return d, nan, nan, nan, 1.0, 0.0
     u = d / dist
     w0 = w0 / nw
-    v0 = _cross(u, w0)
     _, ca = _reach(dist, L1, L2)
-    sa = np.sqrt(1 - ca * ca)
+    return d, u, w0, _cross(u, w0), ca, np.sqrt(1 - ca * ca)
+
+
+@njit(cache=True, nogil=True)
+def _elbow_cost(shoulder, hand, L1, u, w0, v0, ca, sa, k, n, views, w_elbow, turn_cost, base, pts):
+    """``_arm_pole``'s cost of candidate k (of n, on the circle of ``_pole_circle``) with its
+    elbow measured: ``base`` (its violation + twist) + ``w_elbow`` * the mean squared distance
+    (m^2) outside the silhouettes ``views`` (P, f, grid, dt, dt_off) of the upper arm's
+    middle, the elbow and the forearm's middle (``silhouette.points_cost``) + ``turn_cost``
+    per degree the pole turned; ``pts`` (3, 3) scratch."""
+    t = 2.0 * np.pi * k / n
+    c, s = np.cos(t), np.sin(t)
+    for i in range(3):
+        e = shoulder[i] + L1 * (ca * u[i] + sa * (c * w0[i] + s * v0[i]))
+        pts[0, i] = 0.5 * (shoulder[i] + e)
+        pts[1, i] = e
+        pts[2, i] = 0.5 * (e + hand[i])
+    return base + (w_elbow * points_cost(pts, views[0], views[1], views[2], views[3], views[4])
+                   + turn_cost * 360.0 * min(k, n - k) / n)
+
+
+@njit(cache=True, nogil=True)
+def _pole_costs(u, w0, v0, ca, sa, axes, lim, n, twist_cost, out, stop_within):
+    """Each candidate's shoulder violation (deg, ``_viol3``: either name of the rotation) +
+    ``twist_cost`` * |twist| (deg; the Euler Z of the |Y| <= 90 deg name) into ``out`` (n,),
+    for the pole turned by k * 360/n deg about the circle of ``_pole_circle``; with
+    ``stop_within``, False as soon as the given pole (k = 0) is within the limits.
+
+    No arrays per candidate: ``_two_link`` bent towards the pole turned by t has the upper
+    arm z = ca u + sa w, w = cos t w0 + sin t v0, and ``_frame`` gives x = w x u = sin t w0 -
+    cos t v0, y = z x x = ca w - sa u; the shoulder's matrix relative to the trunk at rest
+    (columns right, -forward, -up) is read from their dot products with the body ``axes``
+    (3, 3), as ``euler_xyz_from_matrix`` does."""
     # e . (u, w0, v0) for e = right, -forward, -up (the rest frame's columns)
     eu, ew, ev = np.empty(3), np.empty(3), np.empty(3)
     for a in range(3):
@@ -190,7 +211,6 @@ def _arm_pole(shoulder, hand, L1, L2, pole, axes, lim, n, twist_cost):
         eu[a] = sg * (axes[0, a] * u[0] + axes[1, a] * u[1] + axes[2, a] * u[2])
         ew[a] = sg * (axes[0, a] * w0[0] + axes[1, a] * w0[1] + axes[2, a] * w0[2])
         ev[a] = sg * (axes[0, a] * v0[0] + axes[1, a] * v0[1] + axes[2, a] * v0[2])
-    best, best_k = np.inf, 0
     cd, sd = np.cos(2.0 * np.pi / n), np.sin(2.0 * np.pi / n)
     c, s = 1.0, 0.0
     for k in range(n):
@@ -208,9 +228,50 @@ def _arm_pole(shoulder, hand, L1, L2, pole, axes, lim, n, twist_cost):
             ax = np.arctan2(ca * (c * ew[2] + s * ev[2]) - sa * eu[2], ca * (c * ew[1] + s * ev[1]) - sa * eu[1])
             az = 0.0
         viol = _viol3(ax, ay, az, lim[:, 0], lim[:, 1])
-        if k == 0 and viol == 0.0:
-            return pole
-        cost = np.degrees(viol) + twist_cost * np.degrees(abs(az))
+        if k == 0 and viol == 0.0 and stop_within:
+            return False
+        out[k] = np.degrees(viol) + twist_cost * np.degrees(abs(az))
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _arm_pole(shoulder, hand, L1, L2, pole, axes, lim, n, twist_cost, views, w_elbow, turn_cost):
+    """The elbow's pole (3,) for the two-link arm shoulder -> hand (metres, world; L1, L2
+    the upper arm and forearm + hand): ``pole`` turned about shoulder -> hand by the
+    k * 360/n deg (k < n) of least ``_pole_costs`` (shoulder violation + twist: among arms
+    within the limits, the one nearest the neutral rotation), ``pole`` itself while it keeps
+    the shoulder within ``lim`` (3, 2) radians. The elbow's flexion is fixed by the reach,
+    not the pole, so the shoulder decides alone. ``axes`` (3, 3) the trunk's (right, forward,
+    up) columns. Why: the fixed pole ("backwards and down") is the hanging arm's; a hand at
+    the face or on the head bends the elbow out or forwards.
+
+    With ``w_elbow`` > 0 the elbow decides too: every candidate, the given pole included,
+    costs ``_elbow_cost`` (its elbow against the silhouettes ``views``, plus ``turn_cost``
+    per degree turned), evaluated only where it can win: the silhouette term is >= 0, so a
+    candidate whose cost without it exceeds a cost found (first the least such cost's) is
+    passed over, which chooses exactly what scoring every candidate does.
+    """
+    d, u, w0, v0, ca, sa = _pole_circle(shoulder, hand, L1, L2, pole)
+    if not np.isfinite(u[0]):
+        return pole
+    base = np.empty(n)
+    scored = w_elbow > 0.0
+    if not _pole_costs(u, w0, v0, ca, sa, axes, lim, n, twist_cost, base, not scored):
+        return pole
+    if not scored:
+        return _rot_about(d, 2.0 * np.pi * np.argmin(base) / n, pole)
+    bound = np.empty(n)
+    for k in range(n):
+        bound[k] = base[k] + turn_cost * 360.0 * min(k, n - k) / n
+    pts = np.empty((3, 3))
+    k0 = np.argmin(bound)
+    cost0 = _elbow_cost(shoulder, hand, L1, u, w0, v0, ca, sa, k0, n, views, w_elbow, turn_cost, base[k0], pts)
+    best, best_k = np.inf, 0
+    for k in range(n):
+        if bound[k] > cost0 or bound[k] > best:
+            continue
+        cost = cost0 if k == k0 else _elbow_cost(shoulder, hand, L1, u, w0, v0, ca, sa, k, n, views, w_elbow,
+                                                 turn_cost, base[k], pts)
         if cost < best:
             best, best_k = cost, k
     return _rot_about(d, 2.0 * np.pi * best_k / n, pole)

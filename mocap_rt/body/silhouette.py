@@ -129,6 +129,43 @@ def _project(P, X):
     return x / z, y / z, z
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _cell(u, v, x0, y0, step, gh, gw):
+    """The cell (flat index) of image point (u, v) px in a view's padded grid (x0, y0, step,
+    gh x gw cells), and its distance (cells) beyond the grid (0 inside)."""
+    gx = (u - x0 - 0.5 * (step - 1)) / step + PAD_CELLS
+    gy = (v - y0 - 0.5 * (step - 1)) / step + PAD_CELLS
+    ix = min(max(int(np.floor(gx + 0.5)), 0), gw - 1)
+    iy = min(max(int(np.floor(gy + 0.5)), 0), gh - 1)
+    return iy * gw + ix, np.sqrt((gx - ix) ** 2 + (gy - iy) ** 2) * (
+        1.0 if (gx < 0 or gy < 0 or gx > gw - 1 or gy > gh - 1) else 0.0)
+
+
+@njit(cache=True, nogil=True)
+def points_cost(X, P, f, grid, dt, dt_off):
+    """Mean over the valid views of the mean squared capped distance (m^2) of the points X
+    (N, 3) outside the silhouettes (the model -> image half of ``capsules_cost``, for points)."""
+    total = 0.0
+    n_views = 0
+    cap2 = CAP_M * CAP_M
+    for c in range(P.shape[0]):
+        if grid[c, 0] == 0:
+            continue
+        s = 0.0
+        n = 0
+        for i in range(X.shape[0]):
+            u, v, z = _project(P[c], X[i])
+            if np.isfinite(u):
+                cell, beyond = _cell(u, v, grid[c, 1], grid[c, 2], grid[c, 3], grid[c, 4], grid[c, 5])
+                dm = (dt[dt_off[c] + cell] + beyond) * grid[c, 3] * z / f[c]
+                s += min(dm * dm, cap2)
+                n += 1
+        if n > 0:
+            total += s / n
+            n_views += 1
+    return total / n_views if n_views > 0 else 0.0
+
+
 @njit(cache=True, nogil=True)
 def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
     """Chamfer cost (m^2) of capsules A, B (K, 3), radii (K,) against the views.
@@ -183,18 +220,11 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
                 sv[n_model] = va[k] + t * (vb[k] - va[k])
                 sz[n_model] = za[k] + t * (zb[k] - za[k])
                 n_model += 1
-        for j in range(n_model):       # the samples' cells in the padded grid (vectorised)
-            gx = (su[j] - x0 - 0.5 * (step - 1)) / step + PAD_CELLS
-            gy = (sv[j] - y0 - 0.5 * (step - 1)) / step + PAD_CELLS
-            ix = min(max(int(np.floor(gx + 0.5)), 0), gw - 1)
-            iy = min(max(int(np.floor(gy + 0.5)), 0), gh - 1)
-            cell[j] = off + iy * gw + ix
-            # beyond the grid: plus the distance to its border cell
-            beyond[j] = np.sqrt((gx - ix) ** 2 + (gy - iy) ** 2) * (
-                1.0 if (gx < 0 or gy < 0 or gx > gw - 1 or gy > gh - 1) else 0.0)
+        for j in range(n_model):       # the samples' cells (vectorised)
+            cell[j], beyond[j] = _cell(su[j], sv[j], x0, y0, step, gh, gw)
         s_model = 0.0
         for j in range(n_model):
-            dm = (dt[cell[j]] + beyond[j]) * step * sz[j] / fc
+            dm = (dt[off + cell[j]] + beyond[j]) * step * sz[j] / fc
             s_model += min(dm * dm, cap2)
         # image -> model: each outline point's nearest capsule surface (the first of equal
         # ones), capsule by capsule over all the points (a loop the compiler vectorises)

@@ -33,6 +33,13 @@ difference to the current labelling scored without it. Past acquisition it is le
 (docs/body.md, "Foot direction: the heel end": scored on every frame it turned the kicks
 round, whose raised leg is not above its shoe).
 
+Past acquisition the hypotheses' elbows are measured on the silhouettes as the pose's are
+(``FitConfig.elbow_silhouette``): a hand on the head bends the elbow out, and the fixed pole
+("backwards and down") had charged every labelling alike for it. While acquiring they keep
+the fixed pole: at a cold start with the arms hanging, measured elbows let the hands swap fit
+the arms crossed in front of the body as well as the truth (jumping jacks, frame 0: 20 against
+49; with the fixed pole 99), and nothing earlier holds the labels (docs/body.md).
+
 Legs cannot pass through each other (``crossed_legs_cm2``): drawn from the last pose's hips
 to the feet cues, the two legs' lines must stay a shin's radius apart. Where the current feet
 labels bring them closer and the exchanged labels do not, the depth by which they would pass
@@ -127,7 +134,7 @@ def fill_missing(cues: np.ndarray, axes: np.ndarray, rest_cues: np.ndarray) -> n
 
 def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray, prev_axes: np.ndarray | None,
                      targets: SilhouetteTargets | None, config: IdentityConfig,
-                     feet: np.ndarray | None = None) -> np.ndarray:
+                     feet: np.ndarray | None = None, measured_elbows: bool = True) -> np.ndarray:
     """Costs (4,): the current labelling, then each of ALTERNATIVES, scored alike.
 
     cues (6, 3) metres (head and torso finite; missing hands/feet are filled at rest).
@@ -139,6 +146,7 @@ def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray
     scored, with ``legs_on_shoes_weight`` (the axes are the same for every labelling), and only
     for the facing: the current labelling and the mirror are fitted with it, and the single
     swaps keep their difference to the current labelling fitted without it (module doc).
+    ``measured_elbows``: the elbows on the silhouettes (``BodyFitter.fit``), else the fixed pole.
     """
     feet = legs_only(feet, config.legs_on_shoes_weight)
     up = cues[C_HEAD] - cues[C_TORSO]
@@ -155,9 +163,9 @@ def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray
         X = fill_missing(X, axes, rest_cues)
         if prev_axes is None:
             return fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=180.0,
-                              pan_step_deg=config.cold_step_deg, feet=F).cost
+                              pan_step_deg=config.cold_step_deg, feet=F, measured_elbows=measured_elbows).cost
         return fitter.fit(X, axes, None, targets, search_swivel=False, pan_search_deg=config.pan_search_deg,
-                          pan_refine=config.pan_refine, feet=F).cost
+                          pan_refine=config.pan_refine, feet=F, measured_elbows=measured_elbows).cost
 
     if feet is None:
         return np.array([cost(h, False) for h in range(1 + len(ALTERNATIVES))])

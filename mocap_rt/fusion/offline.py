@@ -49,14 +49,15 @@ class ProcessOutput:
 
 
 def _resolve_early(tracker: BodyTracker, results: list[FusionResult], first_calibrated: int | None) -> None:
-    """Re-solve frames before calibration with the final bone lengths (in place)."""
+    """Re-solve frames before calibration with the final bone lengths (in place), with the
+    limb swivels and silhouettes their fit had."""
     if tracker.config.bone_lengths is not None or not tracker.calibrated or first_calibrated is None:
         return
     stop = first_calibrated
     last = None
     for r in results[:stop]:
         if np.isfinite(r.cues_ik).all() and r.axes is not None:
-            r.root_pos, r.angles, r.joints = tracker.solve_with_axes(r.cues_ik, r.axes)
+            r.root_pos, r.angles, r.joints = tracker.solve_with_axes(r.cues_ik, r.axes, r.swivel, r.targets)
             last = (r.root_pos, r.angles)
         if last is not None:
             r.bvh_frame = tracker.bvh_row(*last)
@@ -75,10 +76,16 @@ def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool 
         results.append(tracker.step(frame, cues))
         if tracker.calibrated and not was:
             first_cal = len(results)
+        elif was:
+            # the silhouettes are kept (a few 100 KB a frame) only for the frames up to the bone
+            # lengths' estimate, which ``_resolve_early`` solves again
+            results[-1].targets = None
         predictions = tracker.predict(frame + 1)
     if first_cal is None and tracker.finish_calibration():  # a clip shorter than calibration_s
         first_cal = len(results)
     _resolve_early(tracker, results, first_cal)
+    for r in results:
+        r.targets = None
     return results
 
 

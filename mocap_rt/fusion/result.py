@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mocap_rt.body.silhouette import SilhouetteTargets
 from mocap_rt.body.skeleton import N_JOINTS, J
 from mocap_rt.names import CUE_INDEX, N_CUES
 
@@ -22,7 +23,9 @@ class FusionResult:
     root_pos (3,), angles (20, 3) radians: the body model pose; pan_rad: the heading.
     pair : the frontal pair's camera names in "pair" mode, else ().
     cues_ik : (6, 3) the cues the IK used (measured, or predicted where missing);
-    axes : (3, 3) body frame (right, forward, up) or None.
+    axes : (3, 3) body frame (right, forward, up) or None. swivel : (4,) the limb swivels
+    the pose was solved with; targets : the frame's silhouettes (kept by ``fusion.offline``
+    only until the bone lengths are estimated, to solve the early frames again).
     joint_valid : (20,) bool, False for joints of a limb whose end cue was missing (that
         limb is at the rest pose) and for all joints when there was no pose.
     """
@@ -41,6 +44,8 @@ class FusionResult:
     cues_ik: np.ndarray = field(default_factory=lambda: np.full((N_CUES, 3), np.nan))
     axes: np.ndarray | None = None
     joint_valid: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS, dtype=bool))
+    swivel: np.ndarray | None = None
+    targets: SilhouetteTargets | None = None
 
 
 # joints that depend on each hand/foot cue (the limb beyond the shoulder/hip)

@@ -43,7 +43,7 @@ from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
 from mocap_rt.body.fit import BodyFitter, FitConfig
-from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
+from mocap_rt.body.foot_axis import M2_TO_CM2, axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
@@ -196,7 +196,7 @@ class BodyTracker:
                 self._swivel = refine_swivel(self.model, self.fill_missing(cues_ik, axes), axes, self._swivel, cfg)
         self._right = axes[:, 0]
         self._axes = axes
-        root, angles, joints = self.solve_with_axes(cues_ik, axes, self._swivel)
+        root, angles, joints = self.solve_with_axes(cues_ik, axes, self._swivel, targets)
         return root, angles, joints, axes
 
     def _solve_and_keep(self, cues_ik: np.ndarray, targets: SilhouetteTargets | None,
@@ -212,14 +212,19 @@ class BodyTracker:
         placed with the body axes at the torso (``identity.fill_missing``)."""
         return fill_missing(cues_ik, axes, self._rest_cues)
 
-    def solve_with_axes(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def solve_with_axes(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None,
+                        targets: SilhouetteTargets | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Stateless IK for given body axes: (root (3,), angles (J, 3), joints (J, 3)).
 
         Missing hand/foot cues (NaN rows) are filled from the rest pose (``fill_missing``).
+        With ``targets`` (views) the elbows are chosen on the silhouettes as the fit chose them
+        (``FitConfig.elbow_silhouette``), so the pose is the one the fit scored.
         """
         cues_ik = self.fill_missing(cues_ik, axes)
-        root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic, swivel)
+        measured = targets is not None and targets.n_views > 0 and self.config.fit.elbow_silhouette
+        root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic, swivel,
+                                     *((targets.args()[:5], self.config.fit.silhouette_weight * M2_TO_CM2)
+                                       if measured else ()))
         model = self.model
         if self.config.ik == "ccd":
             res = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
@@ -325,7 +330,7 @@ class BodyTracker:
         cams_used = tuple(self._names[c] for c in range(len(self._names)) if used[c].any())
         pair = tuple(self._names[i] for i in self._pair) if (self.config.views == "pair" and self._pair) else ()
         return FusionResult(int(frame), measured, valid, joints, row, cams_used, timings,
-                            root, angles, pan, pair, cues_ik, axes, joint_valid)
+                            root, angles, pan, pair, cues_ik, axes, joint_valid, self._swivel.copy(), targets)
 
     def _identity_input(self, X: np.ndarray, valid: np.ndarray, pred: np.ndarray, targets: SilhouetteTargets | None,
                         feet: np.ndarray | None) -> tuple | None:
@@ -372,7 +377,8 @@ class BodyTracker:
                                  cue_valid=swap_pairs(result.cue_valid, k), joints=joints,
                                  bvh_frame=self.bvh_row(root, angles), root_pos=root, angles=angles,
                                  pan_rad=pan_angle(axes), cues_ik=cues_ik, axes=axes,
-                                 joint_valid=joint_validity(np.isfinite(cues_ik).all(axis=1)))
+                                 joint_valid=joint_validity(np.isfinite(cues_ik).all(axis=1)),
+                                 swivel=self._swivel.copy())
             self._maybe_calibrate(X, axes)      # the bone-length sample, with the labels settled
         ms = (time.perf_counter() - t0) * 1e3
         result.timings_ms["identify"] = result.timings_ms.get("identify", 0.0) + ms
@@ -387,7 +393,7 @@ class BodyTracker:
         cfg = self.config.identity
         acquiring = self.identity.frames < cfg.acquire_frames     # the legs score the facing only then
         costs = score_hypotheses(self._fitter, cues, self._rest_cues, prev_axes, targets, cfg,
-                                 feet if acquiring else None)
+                                 feet if acquiring else None, measured_elbows=not acquiring)
         if targets is None or targets.n_views == 0:
             costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
         # legs that pass through each other: a credit to the feet alternative (identity module doc)

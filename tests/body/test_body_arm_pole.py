@@ -5,11 +5,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from mocap_rt.body import silhouette as S
 from mocap_rt.body.analytic import AnalyticConfig, analytic_pose
+from mocap_rt.body.estimate import bone_lengths_from_joints
+from mocap_rt.body.fit import BodyFitter, FitConfig
 from mocap_rt.body.kinematics import forward_kinematics
-from mocap_rt.body.limb_geometry import joint_violation
+from mocap_rt.body.limb_geometry import _arm_pole, _elbow_cost, _pole_circle, _pole_costs, _rot_about, \
+    joint_violation
 from mocap_rt.body.skeleton import J, body_model
-from mocap_rt.names import CUE_JOINT_INDEX
+from mocap_rt.names import C_HEAD, C_TORSO, CUE_JOINT_INDEX
+from mocap_rt.studio.body_map import POINT_NAMES
 
 FIXED = AnalyticConfig(elbow_pole_candidates=0)
 SEARCH = AnalyticConfig()
@@ -181,3 +186,102 @@ def test_the_fit_judges_a_shoulder_by_swing_and_twist():
                 assert got == 0.0
             elif i < 60:
                 assert got > 80.0 and shoulder_violation_deg(model, a, s) == 0.0
+
+
+@pytest.fixture(scope="module")
+def hands_on_head(tmp_path_factory):
+    """Frames of the procedural hands on the head (seed 0) while the hands rest there (from
+    2.6 s, 0.2 s), 6-camera ring at 320x240: (rig, truth dict, {frame: SilhouetteTargets})."""
+    from mocap_rt.body.silhouette import SilhouetteTargets
+    from mocap_rt.fusion.evaluate import truth_camera_cues
+    from mocap_rt.io.recording import Recording
+    from mocap_rt.studio.synth import make_rig, synthesize
+    from mocap_rt.studio.variants import load_motion
+
+    clip, name = load_motion("procedural:hands_on_head:0", None)
+    out = tmp_path_factory.mktemp("hands_on_head") / "rec"
+    synthesize(clip, out, rig=make_rig("ring", size=(320, 240)), fps=30.0, seconds=0.2, start_s=2.6, seed=3,
+               motion_name=name)
+    rec = Recording(out)
+    truth, rig = rec.truth, rec.rig
+    widths = {c.name: int(c.size[0]) for c in rig.cameras}
+    rng = np.random.default_rng(0)
+    targets = {f: SilhouetteTargets.from_cues(rig.cameras, truth_camera_cues(truth, list(rig.names), f, f, 0.0, rng,
+                                                                              widths))
+               for f in range(rec.n_frames)}
+    rec.close()
+    return rig, truth, targets
+
+
+
+def _truth_axes(joints):
+    """Body axes (3, 3) of truth joints (J, 3): up from the torso cue to the head, right from
+    the hips and shoulders."""
+    X = joints[list(CUE_JOINT_INDEX)]
+    up = X[C_HEAD] - X[C_TORSO]
+    up /= np.linalg.norm(up)
+    right = joints[J["hip_r"]] - joints[J["hip_l"]] + joints[J["shoulder_r"]] - joints[J["shoulder_l"]]
+    right -= up * (right @ up)
+    right /= np.linalg.norm(right)
+    return np.column_stack([right, np.cross(up, right), up])
+
+
+def test_the_pose_is_the_one_the_fit_scored(hands_on_head):
+    """Hands resting on the head, the truth's cues: the pose solved with the fit's axes,
+    swivels and silhouettes (what the tracker publishes) has the silhouette cost the fit
+    reported for it (its elbows chosen on the silhouettes alike), and its elbows differ from
+    the fixed pole's."""
+    rig, truth, targets = hands_on_head
+    joints = truth["joints"]
+    model = body_model(bone_lengths_from_joints(joints), "paper")
+    cfg = AnalyticConfig()
+    fitter = BodyFitter(model, cfg)
+    A, B = np.empty((S.N_CAPSULES, 3)), np.empty((S.N_CAPSULES, 3))
+    pts = np.empty((len(POINT_NAMES), 3))
+    for f, T in targets.items():
+        X = joints[f][list(CUE_JOINT_INDEX)]
+        res = fitter.fit(X, _truth_axes(joints[f]), None, T)
+        elbows = {}
+        for name, views in (("measured", (T.args()[:5], 1e4)), ("fixed pole", ())):
+            root, angles = analytic_pose(model, X, res.axes, cfg, res.swivel, *views)
+            pos, rot = forward_kinematics(model, root, angles)
+            elbows[name] = pos[[J["elbow_l"], J["elbow_r"]]]
+            if name == "measured":
+                S.pose_points(pos, rot, np.radians(model.lengths.foot_pitch_deg), pts)
+                S.body_capsules(pts, A, B)
+                sil = S.capsules_cost(A, B, S.CAPSULE_RADII_M, *T.args()) * 1e4
+                np.testing.assert_allclose(sil, res.silhouette_cm2, rtol=1e-9)
+        assert np.linalg.norm(elbows["measured"] - elbows["fixed pole"], axis=1).max() > 0.05
+
+
+def test_the_elbow_on_the_silhouettes_chooses_what_scoring_every_candidate_does(hands_on_head):
+    """``_arm_pole`` with the elbow measured passes over candidates that cannot win; against
+    a brute force scoring all of them (random arms about the rendered body, random poles)."""
+    rig, truth, targets = hands_on_head
+    joints = truth["joints"][0]
+    model = body_model(bone_lengths_from_joints(truth["joints"]), "paper")
+    L1 = model.lengths.upper_arm_m
+    L2 = model.lengths.forearm_m + model.lengths.hand_m
+    cfg = AnalyticConfig()
+    n, views, w = cfg.elbow_pole_candidates, targets[0].args()[:5], 1e4
+    axes = _truth_axes(joints)
+    rng = np.random.default_rng(7)
+    pts = np.empty((3, 3))
+    evaluated = 0
+    for i in range(200):
+        s = "lr"[i % 2]
+        shoulder = joints[J[f"shoulder_{s}"]] + rng.normal(0.0, 0.02, 3)
+        hand = shoulder + rng.normal(0.0, 1.0, 3) * [0.25, 0.25, 0.3]
+        pole = rng.normal(size=3)
+        pole /= np.linalg.norm(pole)
+        lim = np.ascontiguousarray(model.limits[J[f"shoulder_{s}"]])
+        got = _arm_pole(shoulder, hand, L1, L2, pole, axes, lim, n, cfg.elbow_twist_cost, views, w,
+                        cfg.elbow_turn_cost)
+        d, u, w0, v0, ca, sa = _pole_circle(shoulder, hand, L1, L2, pole)
+        base = np.empty(n)
+        _pole_costs(u, w0, v0, ca, sa, axes, lim, n, cfg.elbow_twist_cost, base, False)
+        costs = [_elbow_cost(shoulder, hand, L1, u, w0, v0, ca, sa, k, n, views, w, cfg.elbow_turn_cost, base[k], pts)
+                 for k in range(n)]
+        np.testing.assert_array_equal(got, _rot_about(d, 2.0 * np.pi * int(np.argmin(costs)) / n, pole))
+        evaluated += int(np.argmin(costs)) != 0
+    assert evaluated > 20          # the choice is not always the given pole
