@@ -61,6 +61,7 @@ class SceneState:
 
     radii: deque = field(default_factory=lambda: deque(maxlen=HISTORY_FRAMES))
     suspect_frames: int = 0
+    confirmed: bool = False      # the head label has passed the head test once
 
     def head_radius(self) -> float:
         """Median recent head radius, px (NaN before any); ``statistics.median``, not
@@ -131,11 +132,14 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
     found = math.isfinite(head_xy[0]) and math.isfinite(head_xy[1]) and head_conf > 0
     if found and math.isfinite(head_score(head_xy, head_area, ridge_xy, up)):
         state.suspect_frames = 0
+        state.confirmed = True
         if head_conf >= 0.9:                 # a full, visible blob: its size scales the torso
             state.radii.append(math.sqrt(head_area / math.pi))
         return None
     state.suspect_frames += 1
-    if state.suspect_frames < HEAD_CHECK_FRAMES:
+    # a label that never passed has no evidence to keep: re-seated at once (a cold start took
+    # a hand raised above the head for it, "the region nearest the silhouette's top")
+    if state.confirmed and state.suspect_frames < HEAD_CHECK_FRAMES:
         return None
     r = state.head_radius()
     min_area = MIN_HEAD_AREA_PX

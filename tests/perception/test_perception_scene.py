@@ -60,6 +60,21 @@ def test_a_head_label_on_a_hand_is_re_seated_after_a_few_frames():
     assert abs(area - (skin[:, :120] > 0).sum()) < 1e-9
 
 
+def test_a_cold_start_head_label_on_a_raised_hand_is_re_seated_at_once():
+    """Arms overhead at a track's first frame: the head label took a hand above the head ("the
+    region nearest the silhouette's top", the jumping jacks' first frame in two views). A label
+    that never passed the head test has nothing to keep: it is re-seated on the first frame,
+    where a head that passed once waits ``HEAD_CHECK_FRAMES`` (the test above)."""
+    skin = np.zeros((200, 160), np.float32)
+    cv2.circle(skin, (80, 60), 10, 1.0, -1)                    # head, radius 10
+    cv2.circle(skin, (95, 15), 5, 1.0, -1)                     # a hand raised above it
+    ridge, cov = np.array([80.0, 60.0 + TORSO_HEAD_RADII * 10.0]), np.diag([30.0, 400.0])
+    hand = np.array([95.0, 15.0])
+    out = check_head(SceneState(), hand, np.pi * 25, 1.0, ridge, cov, skin, (0, 0))
+    assert out is not None
+    np.testing.assert_allclose(out[0], (80.0, 60.0), atol=0.5)
+
+
 def test_a_head_failing_on_a_tilted_axis_is_not_re_seated_on_a_hand():
     """An arm raised beside the head tilts the ridge band's axis: the head (radius 10) fails the
     test there, and only a hand-sized region beside the face passes it; the head label stays
