@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mocap_rt.body.analytic import _LIMB_JOINTS, AnalyticConfig, _analytic, _angles_from_frames, limb_args
+from mocap_rt.body.analytic import _LIMB_JOINTS, NO_VIEWS, AnalyticConfig, _analytic, _angles_from_frames, limb_args
 from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, N_FOOT_COLS, foot_axis_cost
 from mocap_rt.body.kinematics import fk_kernel
 from mocap_rt.body.limb_geometry import _cross, _rot_about, joint_violation
@@ -221,7 +221,13 @@ class BodyFitter:
              terms)
         return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]), float(terms[3]))
 
+    def elbow_views(self, targets: SilhouetteTargets | None) -> tuple:
+        """``analytic_pose``'s (views, w_elbow) that measure the elbows on ``targets`` as this
+        fitter scores them (``elbow_silhouette``), or () for the fixed pole."""
+        if not (self.config.elbow_silhouette and targets is not None and targets.n_views > 0):
+            return ()
+        return targets.args()[:5], self.config.silhouette_weight * M2_TO_CM2
+
 
 _NO_FEET = np.zeros((2, 1, N_FOOT_COLS))
-_NO_VIEWS = (np.zeros((1, 3, 4)), np.ones(1), np.zeros((1, 6), np.int64), np.zeros(1, np.float32),
-             np.zeros(1, np.int64), np.zeros((1, 1, 2)), np.zeros(1, np.int64))
+_NO_VIEWS = (*NO_VIEWS, np.zeros((1, 1, 2)), np.zeros(1, np.int64))    # + outline, n_outline

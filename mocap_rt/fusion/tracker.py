@@ -43,7 +43,7 @@ from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
 from mocap_rt.body.fit import BodyFitter, FitConfig
-from mocap_rt.body.foot_axis import M2_TO_CM2, axes_only, follow_relabelling, foot_axes
+from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
@@ -221,10 +221,8 @@ class BodyTracker:
         (``FitConfig.elbow_silhouette``), so the pose is the one the fit scored.
         """
         cues_ik = self.fill_missing(cues_ik, axes)
-        measured = targets is not None and targets.n_views > 0 and self.config.fit.elbow_silhouette
         root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic, swivel,
-                                     *((targets.args()[:5], self.config.fit.silhouette_weight * M2_TO_CM2)
-                                       if measured else ()))
+                                     *self._fitter.elbow_views(targets))
         model = self.model
         if self.config.ik == "ccd":
             res = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
