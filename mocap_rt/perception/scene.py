@@ -25,7 +25,8 @@ head when, measured in its own equivalent radius ``sqrt(area / pi)``, it lies
 ``HEAD_ALONG_RADII`` along and within ``HEAD_ACROSS_RADII`` across the axis (a hand is half
 the head's size, so at the head's place it is twice as many of its own radii away; a hand
 overhead is farther still, hands at the chest nearer). A head label that fails the test
-for ``HEAD_CHECK_FRAMES`` frames in a row moves to the skin region that passes it best, of
+for ``HEAD_CHECK_FRAMES`` frames in a row (at once if it never passed it: a cold start can take
+a hand raised above the head for it) moves to the skin region that passes it best, of
 those at least ``RESEAT_MIN_AREA_FRAC`` of the head's recent area (a hand is about a quarter of
 it). The axis is the ridge band's principal axis pointing up the image (the image vertical
 when the band is not elongated); an arm raised beside the head tilts it (37 deg on the
