@@ -129,7 +129,7 @@ def pan_angle(axes: np.ndarray) -> float:
 
 
 # ``_analytic``'s ``views`` when there are none (``silhouette.SilhouetteTargets.args``' first five)
-NO_VIEWS = (np.zeros((1, 3, 4)), np.ones(1), np.zeros((1, 6), np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64))
+NO_VIEWS = (np.zeros((1, 3, 4)), np.ones(1), np.zeros((1, 8), np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64))
 
 
 @njit(cache=True, nogil=True)

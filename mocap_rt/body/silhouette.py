@@ -11,6 +11,12 @@ silhouette (``mocap_rt.cues.CompactSilhouette``) by a two-sided chamfer distance
 * image -> model: points on the silhouette's outline must be explained by the model;
   each costs its distance to the nearest projected capsule outline (0 inside one).
 
+Only what a camera sees is compared: a model point that projects outside the image is not
+scored (the camera cannot tell whether it is the person's), and a silhouette cut by the
+image's edge has no outline there (the cells along the edge are not outline points). A
+person leaving a camera's field of view used to cost up to 130 cm^2 in that view alone
+(feet below the image counted as outside the silhouette), more than a wrong heading.
+
 Distances are converted from pixels to metres at the point's depth (``d_px * z / f``),
 capped at ``CAP_M`` and averaged as squares, so the cost is in m^2 and the same for a
 near and a far camera. Lens distortion is ignored (pinhole ``K [R | t]``): the cells are
@@ -141,10 +147,17 @@ def _cell(u, v, x0, y0, step, gh, gw):
         1.0 if (gx < 0 or gy < 0 or gx > gw - 1 or gy > gh - 1) else 0.0)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _in_image(u, v, width, height):
+    """Whether the image point (u, v) px lies in the image (NaN: no)."""
+    return u >= -0.5 and v >= -0.5 and u < width - 0.5 and v < height - 0.5
+
+
 @njit(cache=True, nogil=True)
 def points_cost(X, P, f, grid, dt, dt_off):
     """Mean over the valid views of the mean squared capped distance (m^2) of the points X
-    (N, 3) outside the silhouettes (the model -> image half of ``capsules_cost``, for points)."""
+    (N, 3) outside the silhouettes (the model -> image half of ``capsules_cost``, for points;
+    points outside the image are not scored)."""
     total = 0.0
     n_views = 0
     cap2 = CAP_M * CAP_M
@@ -155,7 +168,7 @@ def points_cost(X, P, f, grid, dt, dt_off):
         n = 0
         for i in range(X.shape[0]):
             u, v, z = _project(P[c], X[i])
-            if np.isfinite(u):
+            if _in_image(u, v, grid[c, 6], grid[c, 7]):
                 cell, beyond = _cell(u, v, grid[c, 1], grid[c, 2], grid[c, 3], grid[c, 4], grid[c, 5])
                 dm = (dt[dt_off[c] + cell] + beyond) * grid[c, 3] * z / f[c]
                 s += min(dm * dm, cap2)
@@ -170,8 +183,8 @@ def points_cost(X, P, f, grid, dt, dt_off):
 def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
     """Chamfer cost (m^2) of capsules A, B (K, 3), radii (K,) against the views.
 
-    P (C, 3, 4) pinhole matrices; f (C,) focal lengths px; grid (C, 6) int64 rows
-    (valid, x0, y0, step, padded height, padded width); dt float32 flat distance
+    P (C, 3, 4) pinhole matrices; f (C,) focal lengths px; grid (C, 8) int64 rows
+    (valid, x0, y0, step, padded height, padded width, image width, image height); dt float32 flat distance
     transforms (cells) of the padded grids at ``dt_off`` (C,); outline (C, Q, 2) pixels,
     ``n_outline`` (C,) of them valid. Returns the mean over valid views of
     (mean model->image + mean image->model squared capped distances).
@@ -202,7 +215,8 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
     for c in range(C):
         if grid[c, 0] == 0:
             continue
-        x0, y0, step, gh, gw = grid[c, 1], grid[c, 2], grid[c, 3], grid[c, 4], grid[c, 5]
+        x0, y0, step, gh, gw, width, height = grid[c, 1], grid[c, 2], grid[c, 3], grid[c, 4], grid[c, 5], \
+            grid[c, 6], grid[c, 7]
         off = dt_off[c]
         fc = f[c]
         # model -> image: the distance transform at samples along each projected axis
@@ -219,7 +233,7 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
                 su[n_model] = ua[k] + t * (ub[k] - ua[k])
                 sv[n_model] = va[k] + t * (vb[k] - va[k])
                 sz[n_model] = za[k] + t * (zb[k] - za[k])
-                n_model += 1
+                n_model += 1 if _in_image(su[n_model], sv[n_model], width, height) else 0
         for j in range(n_model):       # the samples' cells (vectorised)
             cell[j], beyond[j] = _cell(su[j], sv[j], x0, y0, step, gh, gw)
         s_model = 0.0
@@ -267,19 +281,22 @@ def rig_projection(cameras: Sequence[Camera]) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, nogil=True)
-def _prepare(mask, pad, background, outline, x0, y0, step):
+def _prepare(mask, pad, background, outline, x0, y0, step, width, height):
     """Write the padded background mask (1 = not the person) and up to len(outline) outline
-    cells (a set cell with a 4-neighbour unset, evenly taken in raster order) as pixel
-    centres; return the number of outline points."""
+    cells (a set cell with a 4-neighbour unset, evenly taken in raster order; not the cells
+    on the edge of the ``width`` x ``height`` image) as pixel centres; return the number of
+    outline points."""
     h, w = mask.shape
     border = np.empty(h * w, np.int64)      # the outline cells, raster order
     n = 0
     for y in range(h):
+        edge_y = y0 + step * y <= 0 or y0 + step * (y + 1) >= height
         for x in range(w):
             m = mask[y, x]
             background[y + pad, x + pad] = 0 if m else 1
-            if m and (x == 0 or y == 0 or x == w - 1 or y == h - 1 or not mask[y, x - 1]
-                      or not mask[y, x + 1] or not mask[y - 1, x] or not mask[y + 1, x]):
+            if m and not (edge_y or x0 + step * x <= 0 or x0 + step * (x + 1) >= width) and (
+                    x == 0 or y == 0 or x == w - 1 or y == h - 1 or not mask[y, x - 1]
+                    or not mask[y, x + 1] or not mask[y - 1, x] or not mask[y + 1, x]):
                 border[n] = y * w + x
                 n += 1
     q = outline.shape[0]
@@ -308,7 +325,7 @@ class SilhouetteTargets:
     def __init__(self, cameras: Sequence[Camera], projection: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.P, self.f = rig_projection(cameras) if projection is None else projection
         C = len(cameras)
-        self.grid = np.zeros((C, 6), np.int64)
+        self.grid = np.zeros((C, 8), np.int64)
         self.dt = np.zeros(1, np.float32)
         self.dt_off = np.zeros(C, np.int64)
         self.outline = np.zeros((C, MAX_OUTLINE_POINTS, 2))
@@ -333,10 +350,12 @@ class SilhouetteTargets:
                 continue
             h, w = sil.mask.shape
             bg = np.ones((h + 2 * PAD_CELLS, w + 2 * PAD_CELLS), np.uint8)
-            out.n_outline[c] = _prepare(sil.mask, PAD_CELLS, bg, out.outline[c], sil.x0, sil.y0, sil.step)
+            width, height = cam.size
+            out.n_outline[c] = _prepare(sil.mask, PAD_CELLS, bg, out.outline[c], sil.x0, sil.y0, sil.step, width,
+                                        height)
             d = cv2.distanceTransform(bg, cv2.DIST_L2, 3)
             dts.append(d.ravel())
-            out.grid[c] = (1, sil.x0, sil.y0, sil.step, d.shape[0], d.shape[1])
+            out.grid[c] = (1, sil.x0, sil.y0, sil.step, d.shape[0], d.shape[1], width, height)
             out.dt_off[c] = off
             off += d.size
         if dts:
