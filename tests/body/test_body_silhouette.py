@@ -111,6 +111,39 @@ def test_the_true_body_fits_its_silhouettes_and_a_turned_one_does_not(walk, rend
         assert bad > 10 * good
 
 
+def test_only_what_a_camera_sees_is_compared(walk, rendered):
+    """A view whose image ends above the person's knees (the same camera with its image cut
+    at that row, the silhouette cut with it): the true body still fits (the legs below the
+    image are not scored, and the cut edge gives no outline points), while counting them as
+    outside the silhouette would cost more than the body turned front to back."""
+    from dataclasses import replace
+
+    rig, frames = rendered
+    f = 10
+    A, B = np.empty((S.N_CAPSULES, 3)), np.empty((S.N_CAPSULES, 3))
+    pts = walk.points[f]
+    S.body_capsules(pts, A, B)
+    cam = rig.cameras[0]
+    knee = cam.project(pts[POINT_NAMES.index("knee_l")][None])[0][0]
+    cut = int(knee[1]) - 10                                   # the image's last row, above the knee
+    sil = frames[f][cam.name].silhouette
+    rows = (cut - sil.y0) // sil.step
+    assert 5 < rows < sil.mask.shape[0]
+    short = replace(cam, size=(cam.size[0], sil.y0 + rows * sil.step))
+    cues = {cam.name: replace(frames[f][cam.name], silhouette=CompactSilhouette(sil.x0, sil.y0, sil.step,
+                                                                               sil.mask[:rows]))}
+    T = S.SilhouetteTargets.from_cues([short], cues)
+    assert T.n_views == 1
+    n = T.n_outline[0]
+    edge = T.outline[0, :n, 1] >= short.size[1] - sil.step
+    assert n > 10 and not edge.any()                         # no outline point along the cut
+    good = S.capsules_cost(A, B, S.CAPSULE_RADII_M, *T.args())
+    assert np.sqrt(good) < 0.015
+    # the old rule: the image as tall as the rig's (what lies below the cut reads as background)
+    T_all = S.SilhouetteTargets.from_cues([cam], cues)
+    assert S.capsules_cost(A, B, S.CAPSULE_RADII_M, *T_all.args()) > 10 * good
+
+
 def test_the_outline_term_is_each_points_distance_to_the_nearest_capsule_surface(walk, rendered):
     """The image -> model half of the cost against a brute-force numpy oracle: per outline
     point, the least distance to a projected capsule (segment distance less the radius
