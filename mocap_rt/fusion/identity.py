@@ -97,16 +97,25 @@ class IdentityConfig:
 
 @dataclass
 class IdentityState:
-    """Evidence (3,) per alternative (ALTERNATIVES order), frames seen, switches made."""
+    """Evidence (3,) per alternative (ALTERNATIVES order), frames seen, switches made.
+
+    won (3,): for how many frames in a row (this one included) each alternative has been
+    cheaper than the current labelling, within this track; ``last_switch``: the alternative
+    the last switch took and how many frames back it reaches (that count; while acquiring, all
+    the track's frames: its labels were the cold start's guess).
+    """
 
     evidence: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES)))
     frames: int = 0
     switches: int = 0
     last_costs: np.ndarray = field(default_factory=lambda: np.full(1 + len(ALTERNATIVES), np.nan))
+    won: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES), np.int64))
+    last_switch: tuple[int, int] = (-1, 0)
 
     def reset(self) -> None:
         self.evidence[:] = 0.0
         self.frames = 0
+        self.won[:] = 0
 
 
 def swap_pairs(X: np.ndarray, k: int) -> np.ndarray:
@@ -228,8 +237,10 @@ def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> i
     gain = costs[0] - costs[1:]
     gain = np.where(np.isfinite(gain), gain, 0.0)
     state.evidence = config.decay * state.evidence + gain
+    state.won = np.where(gain > 0, state.won + 1, 0)
     state.frames += 1
-    need = config.switch_evidence * (config.acquire_factor if state.frames <= config.acquire_frames else 1.0)
+    acquiring = state.frames <= config.acquire_frames
+    need = config.switch_evidence * (config.acquire_factor if acquiring else 1.0)
     ok = (state.evidence > need) & (gain > config.frame_margin + config.frame_margin_frac * costs[0])
     if not ok.any():
         return -1
@@ -244,6 +255,10 @@ def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> i
             if not ok[single]:
                 return -1
             k = single
+    # how far back the switch reaches: a track's labels before it has acquired its identity were
+    # the cold start's guess, else the frames the alternative won in a row
+    state.last_switch = (k, state.frames if acquiring else int(state.won[k]))
     state.evidence[:] = 0.0
+    state.won[:] = 0
     state.switches += 1
     return k

@@ -1,9 +1,11 @@
 """Offline processing of a recorded multi-view stream, no transport (``mocap-rt process``).
 
 Per frame: perception of every camera (``CameraPerceiver``, fed with the tracker's
-prediction), then ``BodyTracker.step``. At the end, frames solved before the bone
-lengths were estimated are re-solved with the final lengths, so the whole clip uses one
-skeleton. Writes ``OUT_DIR/poses.bvh``, ``OUT_DIR/bones.toml`` (the bone lengths used,
+prediction), then ``BodyTracker.step``. When the identity switches the labels, the frames
+before it that its evidence came from (while the track acquires its identity: all of the
+track's frames) are given the new labels too (``_relabel_back``: what the live service,
+which has published them, cannot do). At the end, frames solved before the bone lengths
+were estimated are re-solved with the final lengths, so the whole clip uses one skeleton. Writes ``OUT_DIR/poses.bvh``, ``OUT_DIR/bones.toml`` (the bone lengths used,
 given or estimated; reusable with ``--bones``), ``OUT_DIR/poses.c3d`` and ``OUT_DIR/poses.trc``
 (the joints as markers, ``mocap_rt.io.exports``) and ``OUT_DIR/poses.npz``:
 
@@ -29,6 +31,8 @@ from mocap_rt.fusion.tracker import BodyTracker, FusionConfig, FusionResult
 from mocap_rt.names import CUE_NAMES, JOINT_NAMES, N_CUES
 
 log = logging.getLogger(__name__)
+
+RELABEL_BACK_FRAMES = 30    # how far back a switch of the labels is carried (frames)
 
 
 @dataclass
@@ -63,6 +67,21 @@ def _resolve_early(tracker: BodyTracker, results: list[FusionResult], first_cali
             r.bvh_frame = tracker.bvh_row(*last)
 
 
+def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: int) -> None:
+    """When the frame just stepped switched the labels (``tracker.identity.switches`` passed
+    ``switches``), the frames before it whose evidence the switch took (the alternative was
+    cheaper than the labels in every one of them, ``IdentityState.last_switch``; at most
+    ``RELABEL_BACK_FRAMES``) get the new labels too (in place). The live service cannot:
+    it has published them."""
+    state = tracker.identity
+    if state.switches == switches:
+        return
+    k, won = state.last_switch
+    back = min(won - 1, RELABEL_BACK_FRAMES, len(results) - 1)
+    for j in range(len(results) - 1 - back, len(results) - 1):
+        results[j] = tracker.with_labels(results[j], k)
+
+
 def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool = True) -> list[FusionResult]:
     """Step ``tracker`` over ``frame_cues(frame_index, predictions) -> (frame, cues)``."""
     from tqdm import tqdm
@@ -73,13 +92,17 @@ def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool 
     for i in tqdm(range(n_frames), disable=not progress, unit="frame", desc="process"):
         frame, cues = frame_cues(i, predictions)
         was = tracker.calibrated
+        switches = tracker.identity.switches
         results.append(tracker.step(frame, cues))
+        _relabel_back(tracker, results, switches)
         if tracker.calibrated and not was:
             first_cal = len(results)
-        elif was:
-            # the silhouettes are kept (a few 100 KB a frame) only for the frames up to the bone
-            # lengths' estimate, which ``_resolve_early`` solves again
-            results[-1].targets = None
+        # the silhouettes (a few 100 KB a frame) are kept for the frames up to the bone lengths'
+        # estimate, which ``_resolve_early`` solves again, and for the last RELABEL_BACK_FRAMES,
+        # which a switch may relabel (``_relabel_back``)
+        old = len(results) - 1 - RELABEL_BACK_FRAMES
+        if first_cal is not None and old >= first_cal:
+            results[old].targets = None
         predictions = tracker.predict(frame + 1)
     if first_cal is None and tracker.finish_calibration():  # a clip shorter than calibration_s
         first_cal = len(results)

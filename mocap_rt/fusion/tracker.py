@@ -383,6 +383,27 @@ class BodyTracker:
         result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + ms
         return result
 
+    def with_labels(self, result: FusionResult, k: int) -> FusionResult:
+        """A past frame's ``result`` with alternative k's labels (index into ALTERNATIVES): its
+        cues exchanged and its pose fitted again from its axes (turned by 180 deg for a mirror),
+        as ``identify_frame`` refits the frame that switches; on its silhouettes when it kept
+        them. Stateless: what ``fusion.offline`` applies to the frames whose evidence a switch
+        took (``IdentityState.last_switch_won``)."""
+        cues_ik = swap_pairs(result.cues_ik, k)
+        out = replace(result, cues_3d=swap_pairs(result.cues_3d, k), cue_valid=swap_pairs(result.cue_valid, k),
+                      cues_ik=cues_ik, joint_valid=joint_validity(np.isfinite(cues_ik).all(axis=1)))
+        if result.axes is None or not np.isfinite(cues_ik[[C_HEAD, C_TORSO]]).all():
+            return out
+        axes = result.axes * [-1.0, -1.0, 1.0] if ALTERNATIVES[k] == "mirror" else result.axes
+        swivel = np.zeros(4)
+        targets = result.targets
+        if targets is not None and targets.n_views > 0:
+            fit = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, swivel, targets)
+            axes, swivel = fit.axes, fit.swivel
+        root, angles, joints = self.solve_with_axes(cues_ik, axes, swivel, targets)
+        return replace(out, root_pos=root, angles=angles, joints=joints, bvh_frame=self.bvh_row(root, angles),
+                       pan_rad=pan_angle(axes), axes=axes, swivel=swivel)
+
     def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None,
                         targets: SilhouetteTargets | None, feet: np.ndarray | None, hips: np.ndarray | None) -> int:
         """Score the hypotheses on ``cues`` (``_identity_input``); on a switch relabel the

@@ -60,6 +60,12 @@ def test_decide_switches_on_consistent_evidence_and_never_on_noise():
             break
     assert taken == feet and switched_at in (n_expected, n_expected + 1)   # > vs >= at the boundary
     assert state.switches == 1 and np.all(state.evidence == 0)
+    assert state.last_switch == (feet, switched_at)       # cheaper in every frame so far
+    # a frame where the alternative is not cheaper restarts the run that a switch carries back
+    state = IdentityState()
+    for g in (3.0, 3.0, -1.0, 3.0, 3.0):
+        decide(state, np.array([10.0, 30.0, 10.0 - g, 50.0]), cfg)
+    assert state.won[feet] == 2 and state.won[ALTERNATIVES.index("hands")] == 0
     # alternating evidence (noise) never switches, however long it lasts
     state = IdentityState()
     for n in range(400):
@@ -158,6 +164,43 @@ def test_feet_tracks_exchanged_mid_track_are_put_right_from_the_next_frame(backw
     _, _, err_step, switches_step, _ = _truth_run(backwards_walk_3s, swap_feet=False, swap_tracks_at=at)
     assert np.array_equal(switches_step, switches)               # the same run ...
     assert err_step[s].max() < 0.03                              # ... whose switching frame step refits
+
+
+def test_offline_carries_a_switch_back_over_the_frames_whose_evidence_it_took(backwards_walk):
+    """Every view labels the feet the wrong way from the first frame: the poses published live
+    have them wrong until the identity, still acquiring, switches (frame 10 here). Before that
+    the labels were the cold start's guess, so ``run_tracker`` (``mocap-rt process``) gives the
+    track's earlier frames the switch's labels too: offline no frame has the feet exchanged."""
+    from mocap_rt.fusion.offline import run_tracker
+
+    rec = Recording(backwards_walk)
+    truth = rec.truth
+    names = list(rec.rig.names)
+    widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
+    tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
+    rng = np.random.default_rng(0)
+
+    def foot_err(r, f):
+        return np.linalg.norm(r.cues_ik[[FL, FR]] - truth["cues"][f][[FL, FR]], axis=1)
+
+    live, fit_frame = [], tracker.fit_frame
+
+    def published(frame, cues):
+        r = fit_frame(frame, cues)
+        live.append(foot_err(r, frame))
+        return r
+
+    tracker.fit_frame = published
+    results = run_tracker(tracker, lambda i, _: (i, _truth_cues(truth, names, widths, i, rng, [(FL, FR)])),
+                          rec.n_frames, progress=False)
+    rec.close()
+    k, back = tracker.identity.last_switch
+    assert tracker.identity.switches == 1 and ALTERNATIVES[k] == "feet"
+    assert back > ACQUIRE_FRAMES // 2 and np.min(live[:back]) > 0.1   # published wrong until the switch ...
+    err = np.array([foot_err(r, r.frame) for r in results])
+    assert err.max() < 0.03                                      # ... right offline from the first frame
+    joints = np.array([r.joints for r in results])
+    assert np.nansum(mirrored_frames(joints, np.asarray(truth["joints"])[:len(joints)])) == 0
 
 
 def test_a_cold_start_is_identified_after_its_pose(kick_reversed):
