@@ -105,6 +105,15 @@ def _truth_cues(truth, names, widths, f, rng, swaps) -> dict:
     return cues
 
 
+def _truth_setup(rec_dir, noise_seed: int = 0):
+    """(recording, truth, camera names, widths, a fresh BodyTracker, rng) for feeding
+    ``_truth_cues`` of ``rec_dir``."""
+    rec = Recording(rec_dir)
+    tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
+    return (rec, rec.truth, list(rec.rig.names), {c.name: int(c.size[0]) for c in rec.rig.cameras}, tracker,
+            np.random.default_rng(noise_seed))
+
+
 def _truth_run(rec_dir, swap_feet: bool, swap_tracks_at: int | None = None, swap_hands: bool = False,
                noise_seed: int = 0, live: bool = False):
     """Truth 2D cues (+1 px noise) and truth silhouettes through BodyTracker, optionally with
@@ -113,12 +122,7 @@ def _truth_run(rec_dir, swap_feet: bool, swap_tracks_at: int | None = None, swap
     3), truth joints, foot cue errors (F, 2) m, identity switches made up to each frame (F,),
     hand cue errors (F, 2) m). The foot errors are those of ``step`` (offline), or with ``live``
     of the pose the service publishes (``fit_frame``, before the frame's identity)."""
-    rec = Recording(rec_dir)
-    truth = rec.truth
-    names = list(rec.rig.names)
-    widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
-    tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
-    rng = np.random.default_rng(noise_seed)
+    rec, truth, names, widths, tracker, rng = _truth_setup(rec_dir, noise_seed)
     joints, err, switches, hand_err, live_err = [], [], [], [], []
     swaps = [p for p, on in (((FL, FR), swap_feet), ((HL, HR), swap_hands)) if on]
     for f in range(rec.n_frames):
@@ -173,12 +177,7 @@ def test_offline_carries_a_switch_back_over_the_frames_whose_evidence_it_took(ba
     track's earlier frames the switch's labels too: offline no frame has the feet exchanged."""
     from mocap_rt.fusion.offline import run_tracker
 
-    rec = Recording(backwards_walk)
-    truth = rec.truth
-    names = list(rec.rig.names)
-    widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
-    tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
-    rng = np.random.default_rng(0)
+    rec, truth, names, widths, tracker, rng = _truth_setup(backwards_walk)
 
     def foot_err(r, f):
         return np.linalg.norm(r.cues_ik[[FL, FR]] - truth["cues"][f][[FL, FR]], axis=1)
@@ -208,12 +207,7 @@ def test_a_cold_start_is_identified_after_its_pose(kick_reversed):
     service publishes) does not score the identity, even while the track acquires it; the frame's
     ``identify_frame`` switches the hands and returns the frame refitted with them, and the next
     frame's pose has them from the start."""
-    rec = Recording(kick_reversed)
-    truth = rec.truth
-    names = list(rec.rig.names)
-    widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
-    tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
-    rng = np.random.default_rng(0)
+    rec, truth, names, widths, tracker, rng = _truth_setup(kick_reversed)
 
     def cues(f):
         return _truth_cues(truth, names, widths, f, rng, [(HL, HR)])
