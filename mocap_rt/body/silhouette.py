@@ -184,8 +184,9 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
     """Chamfer cost (m^2) of capsules A, B (K, 3), radii (K,) against the views.
 
     P (C, 3, 4) pinhole matrices; f (C,) focal lengths px; grid (C, 8) int64 rows
-    (valid, x0, y0, step, padded height, padded width, image width, image height); dt float32 flat distance
-    transforms (cells) of the padded grids at ``dt_off`` (C,); outline (C, Q, 2) pixels,
+    (valid, x0, y0, step, padded height, padded width, image width, image height); dt
+    float32 flat distance transforms (cells) of the padded grids at ``dt_off`` (C,);
+    outline (C, Q, 2) pixels,
     ``n_outline`` (C,) of them valid. Returns the mean over valid views of
     (mean model->image + mean image->model squared capped distances).
     """

@@ -5,7 +5,8 @@ prediction), then ``BodyTracker.step``. When the identity switches the labels, t
 before it that its evidence came from (while the track acquires its identity: all of the
 track's frames) are given the new labels too (``_relabel_back``: what the live service,
 which has published them, cannot do). At the end, frames solved before the bone lengths
-were estimated are re-solved with the final lengths, so the whole clip uses one skeleton. Writes ``OUT_DIR/poses.bvh``, ``OUT_DIR/bones.toml`` (the bone lengths used,
+were estimated are re-solved with the final lengths, so the whole clip uses one skeleton.
+Writes ``OUT_DIR/poses.bvh``, ``OUT_DIR/bones.toml`` (the bone lengths used,
 given or estimated; reusable with ``--bones``), ``OUT_DIR/poses.c3d`` and ``OUT_DIR/poses.trc``
 (the joints as markers, ``mocap_rt.io.exports``) and ``OUT_DIR/poses.npz``:
 
@@ -69,10 +70,10 @@ def _resolve_early(tracker: BodyTracker, results: list[FusionResult], first_cali
 
 def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: int) -> None:
     """When the frame just stepped switched the labels (``tracker.identity.switches`` passed
-    ``switches``), the frames before it whose evidence the switch took (the alternative was
-    cheaper than the labels in every one of them, ``IdentityState.last_switch``; at most
-    ``RELABEL_BACK_FRAMES``) get the new labels too (in place). The live service cannot:
-    it has published them."""
+    ``switches``), the frames before it that the switch reaches (``IdentityState.last_switch``:
+    while acquiring the track's frames, else those the alternative won in a row; at most
+    ``RELABEL_BACK_FRAMES``) get the new labels too (in place). The live service cannot: it
+    has published them."""
     state = tracker.identity
     if state.switches == switches:
         return
