@@ -28,12 +28,14 @@ from pathlib import Path
 import numpy as np
 
 from mocap_rt.fusion.evaluate import Accuracy, accuracy, align_truth, truth_camera_cues
+from mocap_rt.fusion.identity import ALTERNATIVE_PAIRS
 from mocap_rt.fusion.tracker import BodyTracker, FusionConfig, FusionResult
 from mocap_rt.names import CUE_NAMES, JOINT_NAMES, N_CUES
 
 log = logging.getLogger(__name__)
 
-RELABEL_BACK_FRAMES = 30    # how far back a switch of the labels is carried (frames)
+RELABEL_BACK_FRAMES = 150   # how far back a switch of the labels is carried at most (frames)
+PAIR_APART_M = 0.2          # two hands (feet) this far apart cannot exchange their tracks
 
 
 @dataclass
@@ -68,18 +70,36 @@ def _resolve_early(tracker: BodyTracker, results: list[FusionResult], first_cali
             r.bvh_frame = tracker.bvh_row(*last)
 
 
+def _tracked_apart(results: list[FusionResult], pairs: tuple, end: int) -> int:
+    """How many frames before index ``end`` every pair of ``pairs`` (cue index pairs) was
+    measured and at least ``PAIR_APART_M`` apart: frames whose labels tracking alone carried
+    (the filter cannot exchange two tracks that far apart)."""
+    n = 0
+    for r in reversed(results[:end]):
+        if not all(r.cue_valid[a] and r.cue_valid[b] and np.linalg.norm(r.cues_3d[a] - r.cues_3d[b]) >= PAIR_APART_M
+                   for a, b in pairs):
+            break
+        n += 1
+    return n
+
+
 def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: int) -> None:
     """When the frame just stepped switched the labels (``tracker.identity.switches`` passed
-    ``switches``), the frames before it that the switch reaches (``IdentityState.last_switch``:
-    while acquiring the track's frames, else those the alternative won in a row; at most
-    ``RELABEL_BACK_FRAMES``) get the new labels too (in place). The live service cannot: it
-    has published them."""
+    ``switches``), the frames before it that carried the same labels get the new ones too (in
+    place): while acquiring the track's frames, else those the alternative won in a row
+    (``IdentityState.last_switch``), and for the exchange of one pair further back, the frames
+    tracking alone carried that pair to this one (``_tracked_apart``; not for the mirror, which
+    after the acquisition is mostly wrong, docs/body.md); never before the track, at most
+    ``RELABEL_BACK_FRAMES``. The live service cannot: it has published them."""
     state = tracker.identity
     if state.switches == switches:
         return
     k, won = state.last_switch
-    back = min(won - 1, RELABEL_BACK_FRAMES, len(results) - 1)
-    for j in range(len(results) - 1 - back, len(results) - 1):
+    now = len(results) - 1
+    pairs = ALTERNATIVE_PAIRS[k]
+    back = max(won - 1, _tracked_apart(results, pairs, now) if len(pairs) == 1 else 0)
+    back = min(back, state.frames - 1, RELABEL_BACK_FRAMES, now)
+    for j in range(now - back, now):
         results[j] = tracker.with_labels(results[j], k)
 
 

@@ -25,7 +25,8 @@ class FusionResult:
     cues_ik : (6, 3) the cues the IK used (measured, or predicted where missing);
     axes : (3, 3) body frame (right, forward, up) or None. swivel : (4,) the limb swivels
     the pose was solved with; targets : the frame's silhouettes (kept by ``fusion.offline``
-    only until the bone lengths are estimated, to solve the early frames again).
+    until the bone lengths are estimated, to solve the early frames again, and for the last
+    ``RELABEL_BACK_FRAMES``, which a switch of the labels may refit).
     joint_valid : (20,) bool, False for joints of a limb whose end cue was missing (that
         limb is at the rest pose) and for all joints when there was no pose.
     """

@@ -90,3 +90,32 @@ def test_process_config_file_reaches_fusion_and_perception(tmp_path, monkeypatch
     assert got["perception"].roi_margin_px == 9
     assert cli_main([*argv[:4], "--overwrite"]) == 0          # no --config: the defaults
     assert (got["config"].views, got["config"].ik, got["perception"]) == ("all", "analytic", None)
+
+
+def test_tracked_apart_counts_back_to_the_last_frame_tracking_could_have_exchanged_a_pair():
+    """Six frames, the last one switching; counted back from it: both pairs measured and
+    >= PAIR_APART_M apart in the 3 frames before, then the hands 0.1 m apart and a foot
+    unmeasured (3 for each alternative). With the feet 5 cm apart in the frame just before the
+    last: the feet 1, the mirror (both pairs) 1, the hands still 3."""
+    from mocap_rt.fusion.identity import ALTERNATIVE_PAIRS, ALTERNATIVES
+    from mocap_rt.fusion.offline import PAIR_APART_M, _tracked_apart
+    from mocap_rt.fusion.result import FusionResult
+    from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R
+
+    def frame(hands_m: float, feet_m: float, foot_seen: bool = True) -> FusionResult:
+        X = np.zeros((6, 3))
+        X[C_HAND_R, 0], X[C_FOOT_R, 0] = hands_m, feet_m
+        valid = np.ones(6, bool)
+        valid[C_FOOT_R] = foot_seen
+        return FusionResult(0, X, valid, np.zeros((20, 3)), np.zeros(1), (), {})
+
+    apart = PAIR_APART_M + 0.01
+    results = [frame(apart, apart), frame(0.1, apart, foot_seen=False), frame(apart, apart), frame(apart, apart),
+               frame(apart, apart), frame(apart, apart)]       # the last: the switching frame
+    span = {a: _tracked_apart(results, ALTERNATIVE_PAIRS[ALTERNATIVES.index(a)], len(results) - 1)
+            for a in ALTERNATIVES}
+    assert span == {"hands": 3, "feet": 3, "mirror": 3}
+    results[3] = frame(apart, 0.05)
+    span = {a: _tracked_apart(results, ALTERNATIVE_PAIRS[ALTERNATIVES.index(a)], len(results) - 1)
+            for a in ALTERNATIVES}
+    assert span == {"hands": 3, "feet": 1, "mirror": 1}
