@@ -83,24 +83,31 @@ def _tracked_apart(results: list[FusionResult], pairs: tuple, end: int) -> int:
     return n
 
 
-def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: int) -> None:
+def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: int,
+                  previous: tuple[int, int] | None) -> tuple[int, int] | None:
     """When the frame just stepped switched the labels (``tracker.identity.switches`` passed
     ``switches``), the frames before it that carried the same labels get the new ones too (in
     place): while acquiring the track's frames, else those the alternative won in a row
     (``IdentityState.last_switch``), and for the exchange of one pair further back, the frames
     tracking alone carried that pair to this one (``_tracked_apart``; not for the mirror, which
-    after the acquisition is mostly wrong, docs/body.md); never before the track, at most
-    ``RELABEL_BACK_FRAMES``. The live service cannot: it has published them."""
+    after the acquisition is mostly wrong, docs/body.md). A mirror that follows a mirror
+    (``previous``: the last switch's alternative and first frame carried back) undoes it: it
+    reaches back as far as that one did. Never before the track, at most
+    ``RELABEL_BACK_FRAMES``. The live service cannot: it has published them. Returns this
+    switch's (alternative, first frame carried back), else ``previous``."""
     state = tracker.identity
     if state.switches == switches:
-        return
+        return previous
     k, won = state.last_switch
     now = len(results) - 1
     pairs = ALTERNATIVE_PAIRS[k]
     back = max(won - 1, _tracked_apart(results, pairs, now) if len(pairs) == 1 else 0)
+    if len(pairs) == 2 and previous is not None and previous[0] == k:
+        back = max(back, now - previous[1])
     back = min(back, state.frames - 1, RELABEL_BACK_FRAMES, now)
     for j in range(now - back, now):
         results[j] = tracker.with_labels(results[j], k)
+    return k, now - back
 
 
 def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool = True) -> list[FusionResult]:
@@ -110,12 +117,13 @@ def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool 
     results: list[FusionResult] = []
     first_cal = None
     predictions = None
+    last_switch = None
     for i in tqdm(range(n_frames), disable=not progress, unit="frame", desc="process"):
         frame, cues = frame_cues(i, predictions)
         was = tracker.calibrated
         switches = tracker.identity.switches
         results.append(tracker.step(frame, cues))
-        _relabel_back(tracker, results, switches)
+        last_switch = _relabel_back(tracker, results, switches, last_switch)
         if tracker.calibrated and not was:
             first_cal = len(results)
         # the silhouettes (a few 100 KB a frame) are kept for the frames up to the bone lengths'

@@ -119,3 +119,41 @@ def test_tracked_apart_counts_back_to_the_last_frame_tracking_could_have_exchang
     span = {a: _tracked_apart(results, ALTERNATIVE_PAIRS[ALTERNATIVES.index(a)], len(results) - 1)
             for a in ALTERNATIVES}
     assert span == {"hands": 3, "feet": 1, "mirror": 1}
+
+
+def test_a_mirror_that_follows_a_mirror_reaches_back_as_far():
+    """``_relabel_back`` with a stand-in tracker that records which frames it relabels: a mirror
+    after the acquisition reaches back over the frames it won; a second mirror (the labels
+    back where they were before the first) over the first one's frames as well, so that those
+    return to their labels; a feet switch in between breaks the chain."""
+    from mocap_rt.fusion.identity import ALTERNATIVES, IdentityState
+    from mocap_rt.fusion.offline import _relabel_back
+    from mocap_rt.fusion.result import FusionResult
+
+    mirror, feet = ALTERNATIVES.index("mirror"), ALTERNATIVES.index("feet")
+
+    class Tracker:
+        def __init__(self):
+            self.identity = IdentityState(frames=100)
+            self.relabelled: list[tuple[int, int]] = []
+
+        def with_labels(self, r, k):
+            self.relabelled.append((r.frame, k))
+            return r
+
+    def run(switch_plan):
+        """switch_plan: {frame: (alternative, frames won)}; returns the relabelled (frame, k)."""
+        t = Tracker()
+        results, last = [], None
+        for f in range(40):
+            results.append(FusionResult(f, np.zeros((6, 3)), np.zeros(6, bool), np.zeros((20, 3)), np.zeros(1),
+                                        (), {}))   # nothing measured: no tracked-apart span
+            before = t.identity.switches
+            if f in switch_plan:
+                t.identity.last_switch = switch_plan[f]
+                t.identity.switches += 1
+            last = _relabel_back(t, results, before, last)
+        return t.relabelled
+
+    assert run({20: (mirror, 2), 30: (mirror, 3)}) == [(19, mirror)] + [(f, mirror) for f in range(19, 30)]
+    assert run({20: (mirror, 2), 25: (feet, 1), 30: (mirror, 3)}) == [(19, mirror), (28, mirror), (29, mirror)]
