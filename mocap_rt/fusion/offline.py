@@ -71,11 +71,11 @@ def _resolve_early(tracker: BodyTracker, results: list[FusionResult], first_cali
 
 
 def _tracked_apart(results: list[FusionResult], pairs: tuple, end: int) -> int:
-    """How many frames before index ``end`` every pair of ``pairs`` (cue index pairs) was
-    measured and at least ``PAIR_APART_M`` apart: frames whose labels tracking alone carried
-    (the filter cannot exchange two tracks that far apart)."""
+    """How many frames before index ``end`` (at most ``RELABEL_BACK_FRAMES``) every pair of
+    ``pairs`` (cue index pairs) was measured and at least ``PAIR_APART_M`` apart: frames whose
+    labels tracking alone carried (the filter cannot exchange two tracks that far apart)."""
     n = 0
-    for r in reversed(results[:end]):
+    for r in reversed(results[max(0, end - RELABEL_BACK_FRAMES):end]):
         if not all(r.cue_valid[a] and r.cue_valid[b] and np.linalg.norm(r.cues_3d[a] - r.cues_3d[b]) >= PAIR_APART_M
                    for a, b in pairs):
             break
