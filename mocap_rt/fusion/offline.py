@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap_rt.fusion.evaluate import Accuracy, accuracy, align_truth, truth_camera_cues
-from mocap_rt.fusion.identity import ALTERNATIVE_PAIRS
+from mocap_rt.fusion.identity import ALTERNATIVE_PAIRS, ALTERNATIVES
 from mocap_rt.fusion.tracker import BodyTracker, FusionConfig, FusionResult
 from mocap_rt.names import CUE_NAMES, JOINT_NAMES, N_CUES
 
@@ -100,9 +100,9 @@ def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: i
         return previous
     k, won = state.last_switch
     now = len(results) - 1
-    pairs = ALTERNATIVE_PAIRS[k]
-    back = max(won - 1, _tracked_apart(results, pairs, now) if len(pairs) == 1 else 0)
-    if len(pairs) == 2 and previous is not None and previous[0] == k:
+    mirror = ALTERNATIVES[k] == "mirror"
+    back = max(won - 1, 0 if mirror else _tracked_apart(results, ALTERNATIVE_PAIRS[k], now))
+    if mirror and previous is not None and previous[0] == k:
         back = max(back, now - previous[1])
     back = min(back, state.frames - 1, RELABEL_BACK_FRAMES, now)
     for j in range(now - back, now):

@@ -371,12 +371,7 @@ class BodyTracker:
                 cues_ik = swap_pairs(cues_ik, k)
                 root, angles, joints, axes = self._solve_and_keep(cues_ik, targets,
                                                                   None if feet is None else swap_pairs(feet, k))
-                result = replace(result, cues_3d=swap_pairs(result.cues_3d, k),
-                                 cue_valid=swap_pairs(result.cue_valid, k), joints=joints,
-                                 bvh_frame=self.bvh_row(root, angles), root_pos=root, angles=angles,
-                                 pan_rad=pan_angle(axes), cues_ik=cues_ik, axes=axes,
-                                 joint_valid=joint_validity(np.isfinite(cues_ik).all(axis=1)),
-                                 swivel=self._swivel.copy())
+                result = self._relabelled(result, k, cues_ik, (root, angles, joints, axes, self._swivel.copy()))
             self._maybe_calibrate(X, axes)      # the bone-length sample, with the labels settled
         ms = (time.perf_counter() - t0) * 1e3
         result.timings_ms["identify"] = result.timings_ms.get("identify", 0.0) + ms
@@ -387,13 +382,11 @@ class BodyTracker:
         """A past frame's ``result`` with alternative k's labels (index into ALTERNATIVES): its
         cues exchanged and its pose fitted again from its axes (turned by 180 deg for a mirror),
         as ``identify_frame`` refits the frame that switches; on its silhouettes when it kept
-        them. Stateless: what ``fusion.offline`` applies to the frames whose evidence a switch
-        took (``IdentityState.last_switch_won``)."""
+        them. Stateless: what ``fusion.offline`` applies to the frames a switch reaches back to
+        (``IdentityState.last_switch``)."""
         cues_ik = swap_pairs(result.cues_ik, k)
-        out = replace(result, cues_3d=swap_pairs(result.cues_3d, k), cue_valid=swap_pairs(result.cue_valid, k),
-                      cues_ik=cues_ik, joint_valid=joint_validity(np.isfinite(cues_ik).all(axis=1)))
         if result.axes is None or not np.isfinite(cues_ik[[C_HEAD, C_TORSO]]).all():
-            return out
+            return self._relabelled(result, k, cues_ik)
         axes = result.axes * [-1.0, -1.0, 1.0] if ALTERNATIVES[k] == "mirror" else result.axes
         swivel = np.zeros(4)
         targets = result.targets
@@ -401,6 +394,16 @@ class BodyTracker:
             fit = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, swivel, targets)
             axes, swivel = fit.axes, fit.swivel
         root, angles, joints = self.solve_with_axes(cues_ik, axes, swivel, targets)
+        return self._relabelled(result, k, cues_ik, (root, angles, joints, axes, swivel))
+
+    def _relabelled(self, result: FusionResult, k: int, cues_ik: np.ndarray, pose: tuple | None = None) -> FusionResult:
+        """``result`` with alternative k's labels on its cues and ``cues_ik`` (exchanged already),
+        and ``pose`` = (root, angles, joints, axes, swivel) solved on them (None: no pose)."""
+        out = replace(result, cues_3d=swap_pairs(result.cues_3d, k), cue_valid=swap_pairs(result.cue_valid, k),
+                      cues_ik=cues_ik, joint_valid=joint_validity(np.isfinite(cues_ik).all(axis=1)))
+        if pose is None:
+            return out
+        root, angles, joints, axes, swivel = pose
         return replace(out, root_pos=root, angles=angles, joints=joints, bvh_frame=self.bvh_row(root, angles),
                        pan_rad=pan_angle(axes), axes=axes, swivel=swivel)
 
