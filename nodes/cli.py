@@ -75,7 +75,7 @@ def register(subparsers) -> None:
     p.add_argument("--quiet", action="store_true", help="no live status line")
     p.add_argument("--nice", type=int, help="niceness of sync, workers and fusion, e.g. -10 (needs root or CAP_SYS_NICE)")
     p.add_argument("--rt-priority", type=int,
-                   help="SCHED_FIFO priority of the workers once warmed up (fusion +1, sync +2); 0 = off; "
+                   help="SCHED_FIFO priority of the workers once warmed up (fusion the same, sync +2); 0 = off; "
                         "default: 10 at a triggered rate, off with --speed max (needs root or CAP_SYS_NICE)")
     p.set_defaults(func=run)
 

@@ -21,8 +21,11 @@ from nodes.transport import zenoh_argv
 log = logging.getLogger(__name__)
 
 DEFAULT_PREVIEW_EVERY = 6      # with a viewer: one JPEG per camera every 6 frames (5 per s at 30 fps)
-DEFAULT_RT_PRIORITY = 10       # SCHED_FIFO priority of the workers (fusion 11, sync 12)
-RT_PRIORITY_OFFSET = {"camera": 0, "fusion": 1, "sync": 2, "streamer": 2}   # streamer: ~0.3 ms a pose
+DEFAULT_RT_PRIORITY = 10       # SCHED_FIFO priority of the workers and fusion (sync 12)
+# fusion at the workers' priority: its handling of each arriving answer waits for the core a
+# worker frees instead of preempting the frame's other perceptions (p99 ~1 ms lower on 2
+# cores, docs/service.md "Latency"); streamer: ~0.3 ms a pose
+RT_PRIORITY_OFFSET = {"camera": 0, "fusion": 0, "sync": 2, "streamer": 2}
 
 
 @dataclass

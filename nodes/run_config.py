@@ -32,7 +32,7 @@ class RunConfig:
     status_line: bool = True
     fps: float | None = None           # override the trigger base rate
     nice: int = 0                      # niceness of sync, workers, fusion (negative: higher priority)
-    rt_priority: int | None = None     # SCHED_FIFO base priority of workers (fusion +1, sync +2)
+    rt_priority: int | None = None     # SCHED_FIFO priority of workers and fusion (sync +2)
                                        # once warmed up; 0 = off; None = auto (DEFAULT_RT_PRIORITY
                                        # at a triggered rate, off when free-running)
     extra_node_args: dict = field(default_factory=dict)   # node role -> extra argv

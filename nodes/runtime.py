@@ -97,7 +97,7 @@ class ThreadPriority:
 
     A real-time worker does its deferred work (decoding the next replay image, preview JPEG,
     raw frames) at ``DEFERRED_RT_PRIORITY``: below every thread of the frame path (workers
-    10, fusion 11, sync 12), so it never delays another camera's frame, but still above
+    and fusion 10, sync 12), so it never delays another camera's frame, but still above
     ordinary work on the host, which starved it at normal priority (docs/service.md,
     "Latency"). Only this thread switches (a syscall, microseconds); Zenoh's threads keep
     their priority. Does nothing when the thread is not real-time.

@@ -195,7 +195,7 @@ def test_launcher_gives_real_time_priority_to_the_trigger_path_only(tmp_path, tm
                   rerun=f"save:{tmp_path / 'x.rrd'}", log_dir=tmp_path / "logs")
     L = Launcher(RunConfig(**common))                              # auto, triggered rate
     base = DEFAULT_RT_PRIORITY
-    assert prio(L, "sync") == base + 2 and prio(L, "fusion") == base + 1
+    assert prio(L, "sync") == base + 2 and prio(L, "fusion") == base
     assert all(prio(L, n) == base for n in L.nodes if n.startswith("worker-"))
     assert prio(L, "recorder") == prio(L, "viewer") == 0
     assert all(prio(Launcher(RunConfig(**common, speed=None)), n) == 0 for n in L.nodes)   # free-run
