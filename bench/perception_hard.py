@@ -72,19 +72,39 @@ def run_loops(rec_dir, loops=("closed", "open")) -> dict[str, np.ndarray]:
 
 
 def score(rec_dir, xy: np.ndarray) -> dict:
-    """Per-cue ``CueTrackStats`` (as dicts) of one recording's 2D cues."""
+    """Per-cue ``CueTrackStats`` (as dicts) of one recording's 2D cues, with ``along_px`` and
+    ``across_px``: the medians of the error's components along and across the limb
+    (``along_limb_errors``) over the frames the cue is visible and not lost."""
     from dataclasses import asdict
 
     from mocap_rt.io.recording import Recording
-    from mocap_rt.perception.evaluate import LOST_PX_640, cue_track_stats, truth_visible
+    from mocap_rt.perception.evaluate import (ADJOINING_JOINT, LOST_PX_640, along_limb_errors, cue_track_stats,
+                                              truth_visible)
 
     with Recording(rec_dir) as rec:
         truth = rec.truth
         W, H = rec.rig[0].width, rec.rig[0].height
-        vis = truth_visible(truth, W, H)
-        t2d = np.asarray(truth["cues_2d"])
-        stats = cue_track_stats(xy, t2d[:, : xy.shape[1]], vis[:, : xy.shape[1]], rec.fps, LOST_PX_640 * W / 640)
-    return {n: asdict(s) for n, s in stats.items()}
+        F = xy.shape[1]
+        vis = truth_visible(truth, W, H)[:, :F]
+        t2d = np.asarray(truth["cues_2d"])[:, :F]
+        lost_px = LOST_PX_640 * W / 640
+        stats = cue_track_stats(xy, t2d, vis, rec.fps, lost_px)
+        names = [str(n) for n in truth["joint_names"]]
+        joints = np.asarray(truth["joints"], np.float64)[:F]
+        joint_xy = np.full(t2d.shape, np.nan)
+        for k, cue in enumerate(CUE_NAMES):
+            if cue in ADJOINING_JOINT:
+                for c, cam in enumerate(rec.rig.cameras):
+                    joint_xy[c, :, k] = cam.project(joints[:, names.index(ADJOINING_JOINT[cue])])[0]
+    split = along_limb_errors(xy, t2d, joint_xy)
+    near = np.linalg.norm(split, axis=-1) <= lost_px          # NaN (not found, no limb) compares False
+    out = {}
+    for k, n in enumerate(CUE_NAMES):
+        sel = vis[..., k] & near[..., k]
+        out[n] = asdict(stats[n]) | {
+            "along_px": float(np.median(split[..., k, 0][sel])) if sel.any() else float("nan"),
+            "across_px": float(np.median(split[..., k, 1][sel])) if sel.any() else float("nan")}
+    return out
 
 
 def _row(name: str, loop: str, s: dict) -> str:
@@ -103,6 +123,11 @@ def _head() -> str:
             f" {'lost/visible':>12s} {'longest s':>9s} {'reacq s':>7s}")
 
 
+def _finite_median(vals: list[float]) -> float:
+    vals = [v for v in vals if np.isfinite(v)]
+    return float(np.median(vals)) if vals else float("nan")
+
+
 def _pooled(rows: list[dict]) -> dict:
     """Per cue over clips: median of medians, max p95, summed lost frames, longest loss."""
     out = {}
@@ -112,7 +137,8 @@ def _pooled(rows: list[dict]) -> dict:
                   "lost_frames": int(sum(r[n]["lost_frames"] for r in rows)),
                   "visible_frames": int(sum(r[n]["visible_frames"] for r in rows)),
                   "longest_loss_s": float(max(r[n]["longest_loss_s"] for r in rows)),
-                  "reacq_median_s": float(np.nanmedian([r[n]["reacq_median_s"] for r in rows] + [np.nan]))}
+                  "reacq_median_s": _finite_median([r[n]["reacq_median_s"] for r in rows]),
+                  **{k: _finite_median([r[n].get(k, np.nan) for r in rows]) for k in ("along_px", "across_px")}}
     return out
 
 
@@ -151,6 +177,10 @@ def main(argv: list[str] | None = None) -> int:
         print(_row("ALL (pooled)", loop, pooled))
         print("   " + ", ".join(f"{n}: lost {pooled[n]['lost_frames']}/{pooled[n]['visible_frames']}, "
                                f"longest {pooled[n]['longest_loss_s']:.2f} s" for n in CUE_NAMES))
+        print("   error along / across the limb, px (median of the clips' medians; along > 0: away from the "
+              "joint the blob adjoins, where collar, sleeve or trouser leg covers it): " + ", ".join(
+                  f"{n} {pooled[n]['along_px']:+.2f} / {pooled[n]['across_px']:+.2f}" for n in CUE_NAMES
+                  if np.isfinite(pooled[n]["along_px"])))
     print("targets: closed loop median <= 1.5 px, p95 <= 5 px per cue, no loss > 0.2 s; "
           "open loop: head never lost > 0.5 s")
     if args.json:

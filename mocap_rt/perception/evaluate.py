@@ -18,18 +18,55 @@ from mocap_rt.names import CUE_NAMES, LR_PAIRS
 LOST_PX_640 = 20.0
 
 
+# The truth joint at which each blob cue's body part adjoins the next one (the collar, the
+# sleeve, the trouser leg cover that end of the skin or shoe blob): ``along_limb_errors``.
+ADJOINING_JOINT = {"head": "neck", "hand_l": "wrist_l", "hand_r": "wrist_r", "foot_l": "ankle_l", "foot_r": "ankle_r"}
+
+
+def _pair_swaps(xy: np.ndarray, truth_xy: np.ndarray) -> np.ndarray:
+    """(C, F, len(LR_PAIRS)) bool: the crossed labelling of the pair scores better (both cues
+    and both truths defined)."""
+    err = np.linalg.norm(xy - truth_xy, axis=-1)
+    out = np.zeros(err.shape[:-1] + (len(LR_PAIRS),), bool)
+    for i, (a, b) in enumerate(LR_PAIRS):
+        crossed = (np.linalg.norm(xy[..., a, :] - truth_xy[..., b, :], axis=-1)
+                   + np.linalg.norm(xy[..., b, :] - truth_xy[..., a, :], axis=-1))
+        out[..., i] = crossed < (err[..., a] + err[..., b])        # False where any is NaN
+    return out
+
+
+def _matched(truth_xy: np.ndarray, swaps: np.ndarray) -> np.ndarray:
+    """``truth_xy`` (C, F, 6, 2) with each pair's cues exchanged where ``swaps``."""
+    out = truth_xy.copy()
+    for i, (a, b) in enumerate(LR_PAIRS):
+        s = swaps[..., i, None]
+        out[..., a, :] = np.where(s, truth_xy[..., b, :], truth_xy[..., a, :])
+        out[..., b, :] = np.where(s, truth_xy[..., a, :], truth_xy[..., b, :])
+    return out
+
+
 def pair_best_errors(xy: np.ndarray, truth_xy: np.ndarray) -> np.ndarray:
     """(C, F, 6) pixel errors; for each hand and foot pair, per camera and frame, the
     labelling (straight or crossed) with the smaller summed error is used when both cues
     and both truths are defined; otherwise the straight one (identity is fusion's job)."""
     xy, truth_xy = np.asarray(xy, np.float64), np.asarray(truth_xy, np.float64)
-    err = np.linalg.norm(xy - truth_xy, axis=-1)
-    for a, b in LR_PAIRS:
-        crossed_a = np.linalg.norm(xy[..., a, :] - truth_xy[..., b, :], axis=-1)
-        crossed_b = np.linalg.norm(xy[..., b, :] - truth_xy[..., a, :], axis=-1)
-        swap = (crossed_a + crossed_b) < (err[..., a] + err[..., b])       # False where any is NaN
-        err[..., a], err[..., b] = np.where(swap, crossed_a, err[..., a]), np.where(swap, crossed_b, err[..., b])
-    return err
+    return np.linalg.norm(xy - _matched(truth_xy, _pair_swaps(xy, truth_xy)), axis=-1)
+
+
+def along_limb_errors(xy: np.ndarray, truth_xy: np.ndarray, joint_xy: np.ndarray) -> np.ndarray:
+    """(C, F, 6, 2) each cue's error split into its component along the limb, away from the
+    joint it adjoins (``joint_xy`` (C, F, 6, 2): that joint's truth, ``ADJOINING_JOINT``;
+    NaN for the torso), and across it (the 2D cross product of the limb's direction and the error), under the
+    labelling ``pair_best_errors`` scores. NaN where undefined or the joint lies within 1 px of
+    the cue."""
+    xy, truth_xy, joint_xy = (np.asarray(a, np.float64) for a in (xy, truth_xy, joint_xy))
+    swaps = _pair_swaps(xy, truth_xy)
+    truth, joint = _matched(truth_xy, swaps), _matched(joint_xy, swaps)
+    u = truth - joint
+    n = np.linalg.norm(u, axis=-1, keepdims=True)
+    u = np.where(n >= 1.0, u / np.where(n >= 1.0, n, 1.0), np.nan)
+    d = xy - truth
+    return np.stack([(d * u).sum(-1), u[..., 0] * d[..., 1] - u[..., 1] * d[..., 0]], axis=-1)
 
 
 def loss_episodes(lost: np.ndarray, ok: np.ndarray) -> list[tuple[int, bool]]:

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from mocap_rt.perception.evaluate import cue_track_stats, loss_episodes, pair_best_errors, truth_visible
+from mocap_rt.perception.evaluate import (along_limb_errors, cue_track_stats, loss_episodes, pair_best_errors,
+                                         truth_visible)
 
 
 def test_pair_best_errors_takes_the_better_labelling_per_frame():
@@ -18,6 +19,25 @@ def test_pair_best_errors_takes_the_better_labelling_per_frame():
     assert e[0, 0, 1] == pytest.approx(5.0) and e[0, 0, 2] == pytest.approx(0.0)
     assert e[0, 1, 1] == pytest.approx(5.0) and np.isnan(e[0, 1, 2])
     assert (e[0, :, [0, 3, 4, 5]] == 0).all()
+
+
+def test_along_limb_errors_split_each_error_along_and_across_its_limb():
+    """The head 2 px beyond its truth, away from the neck below it, and 1 px to the side; the
+    hands found exchanged, each 3 px short of its truth towards its wrist: the split follows
+    the matched hand's own wrist."""
+    t = np.full((1, 1, 6, 2), np.nan)
+    j = np.full((1, 1, 6, 2), np.nan)
+    t[0, 0, 0], j[0, 0, 0] = (50, 50), (50, 80)            # head above the neck (y down)
+    t[0, 0, 1], j[0, 0, 1] = (100, 100), (90, 100)         # hand_l, its wrist to the left
+    t[0, 0, 2], j[0, 0, 2] = (200, 100), (200, 110)        # hand_r, its wrist below
+    xy = t.copy()
+    xy[0, 0, 0] = (51, 48)
+    xy[0, 0, 1], xy[0, 0, 2] = (200, 103), (97, 100)       # exchanged, each 3 px towards its wrist
+    e = along_limb_errors(xy, t, j)
+    np.testing.assert_allclose(e[0, 0, 0], (2.0, 1.0))
+    np.testing.assert_allclose(e[0, 0, 1], (-3.0, 0.0))
+    np.testing.assert_allclose(e[0, 0, 2], (-3.0, 0.0))
+    assert np.isnan(e[0, 0, 3:]).all()                     # no truth, no joint
 
 
 def test_loss_episodes_neutral_frames_and_reacquisition():
