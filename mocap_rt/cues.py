@@ -198,6 +198,9 @@ class CuePrediction:
         by a nearer cue or is outside the image; an occluded blob keeps its initial
         ellipse (no boundary search).
     radius_px : (6,) float64 predicted blob radius in pixels (NaN where unknown).
+    offset_px : (6, 2) float64 or None: the offset of the centre of what the camera will see of
+        each blob's body part from the cue's point (``body.visible``: collar, sleeve and trouser
+        leg cover one end); the camera reports the centre it measures less this (NaN: none).
     """
 
     camera: str
@@ -205,16 +208,20 @@ class CuePrediction:
     xy: np.ndarray
     visible: np.ndarray
     radius_px: np.ndarray
+    offset_px: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "xy", _arr(self.xy, (N_CUES, 2), np.float64, "xy"))
         object.__setattr__(self, "visible", _arr(self.visible, (N_CUES,), bool, "visible"))
         object.__setattr__(self, "radius_px", _arr(self.radius_px, (N_CUES,), np.float64, "radius_px"))
+        if self.offset_px is not None:
+            object.__setattr__(self, "offset_px", _arr(self.offset_px, (N_CUES, 2), np.float64, "offset_px"))
 
     def to_dict(self) -> dict:
         return {"camera": self.camera, "frame": int(self.frame), "xy": self.xy,
-                "visible": self.visible, "radius_px": self.radius_px}
+                "visible": self.visible, "radius_px": self.radius_px,
+                **({} if self.offset_px is None else {"offset_px": self.offset_px})}
 
     @classmethod
     def from_dict(cls, d: dict) -> "CuePrediction":
-        return cls(str(d["camera"]), int(d["frame"]), d["xy"], d["visible"], d["radius_px"])
+        return cls(str(d["camera"]), int(d["frame"]), d["xy"], d["visible"], d["radius_px"], d.get("offset_px"))

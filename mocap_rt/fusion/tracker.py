@@ -46,6 +46,7 @@ from mocap_rt.body.fit import BodyFitter, FitConfig
 from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
+from mocap_rt.body.visible import pose_visible_offsets, rig_rays
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
@@ -93,6 +94,7 @@ class FusionConfig:
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
     silhouettes: bool = True               # fit the body to the cameras' silhouettes when the cues carry them
+    visible_offsets: bool = True           # predictions carry where each blob's visible centre lies (body.visible)
     identity: IdentityConfig = field(default_factory=IdentityConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -121,6 +123,7 @@ class BodyTracker:
         self._proj = RigProjector(self.cameras)
         self._centers = np.array([c.center for c in self.cameras])
         self._sil_projection = rig_projection(self.cameras)
+        self._rays = rig_rays(self.cameras)                 # the visible centres of the predictions
         self.filter = CueFilter(N_CUES, config.filter)
         self._calib: list[np.ndarray] = []
         self._calib_axes: list[np.ndarray] = []
@@ -449,5 +452,9 @@ class BodyTracker:
         """Predicted cues of every rig camera for ``frame`` (A.4)."""
         X = self.filter.predict_at(frame / self.config.fps)
         xy, vis, rad = predict_views(self._proj, X, CUE_RADII_M)
-        return {name: CuePrediction(name, int(frame), xy[c], vis[c], rad[c])
+        off = [None] * len(self._names)
+        if self.config.visible_offsets and self._last_pose is not None:
+            off = pose_visible_offsets(self.model_full if self.config.ik == "ccd" else self.model,
+                                       *self._last_pose, *self._rays)
+        return {name: CuePrediction(name, int(frame), xy[c], vis[c], rad[c], off[c])
                 for c, name in enumerate(self._names)}

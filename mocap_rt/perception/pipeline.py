@@ -82,6 +82,17 @@ class PerceptionConfig:
     silhouette_bytes: int = SILHOUETTE_MAX_BYTES  # compact silhouette sent to fusion (packed bits); 0 = none
 
 
+def visible_centre_offsets(offset_px: np.ndarray, area_px2: np.ndarray) -> np.ndarray:
+    """The predicted offsets (K, 2) of the blobs' visible centres from their cue points
+    (``CuePrediction.offset_px``) that a blob of ``area_px2`` (K,) can have: 0 where NaN or
+    farther than the blob's radius (what is hidden of a part cannot move its centre that far;
+    a stale or forged prediction moves no cue further)."""
+    off = np.asarray(offset_px, np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        near = (off * off).sum(axis=1) <= np.asarray(area_px2, np.float64) / np.pi     # NaN, inf: False
+    return np.where(near[:, None], off, 0.0)
+
+
 def load_perception_config(path: str | Path) -> PerceptionConfig:
     """Read a ``PerceptionConfig`` from TOML: a ``[perception]`` table, or its fields at the
     top level (sub-tables for the nested settings). Unknown keys are errors naming the file."""
@@ -180,15 +191,24 @@ class CameraPerceiver:
         self._sil = sil
         t2 = time.perf_counter()
         top = self._top_point(sil)
+        # with the body's prediction of what each part shows, the blobs' centres are corrected by it
+        # instead of by the completion from central symmetry (docs/perception.md, "Where the
+        # medians' error lies")
+        offsets = None if prediction is None else prediction.offset_px
+        offset_rows = None if offsets is None else np.isfinite(offsets[:, 0])
         for tracker, idx, cmap in ((self.skin_tracker, _SKIN_IDX, skin), (self.shoe_tracker, _SHOE_IDX, shoe)):
             if prediction is not None:
+                corrected = offset_rows is not None and bool(offset_rows[idx].any())
                 res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, prediction.xy[idx],
-                                   prediction.visible[idx], prediction.radius_px[idx], sil_roi=sil)
+                                   prediction.visible[idx], prediction.radius_px[idx],
+                                   sil_roi=None if corrected else sil)
             else:
                 res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, sil_roi=sil)
             xy[idx], cov[idx], area[idx], conf[idx] = res.xy, res.cov, res.area, res.confidence
         leg_xy = np.empty((2, 2))
         leg_attachment(sil, bx, by, xy[_SHOE_IDX], cov[_SHOE_IDX], area[_SHOE_IDX], MIN_BLOB_AREA_PX, leg_xy)
+        if offsets is not None:
+            xy[:C_TORSO] -= visible_centre_offsets(offsets[:C_TORSO], area[:C_TORSO])
         t3 = time.perf_counter()
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
         ridge = txy + (bx, by)

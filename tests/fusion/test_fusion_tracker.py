@@ -1,5 +1,7 @@
 """BodyTracker driven by exact 2D projections (+ noise) of real CMU motion."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -68,6 +70,13 @@ def test_predict_gives_every_camera_the_projected_cues(walk):
         err = np.linalg.norm(p.xy - uv, axis=1)
         assert np.nanmax(err) < 15.0           # one frame ahead of a walk, in pixels
         assert np.all(p.radius_px[np.isfinite(p.radius_px)] > 1)
+        # where the body shows each part's centre: the head and hands (body.visible), not the
+        # shoes (the leg's split is the subject's convention) nor the torso
+        assert np.isnan(p.offset_px[3:]).all()
+        assert np.isfinite(p.offset_px[:3]).any(axis=1).sum() >= 2 and np.nanmax(np.abs(p.offset_px)) < 10.0
+    off = BodyTracker(rig, replace(tracker.config, visible_offsets=False))
+    run(off, rig, walk[:3], noise_px=0.0)
+    assert all(p.offset_px is None for p in off.predict(3).values())
 
 
 def test_missing_cameras_and_the_pair_mode(walk):

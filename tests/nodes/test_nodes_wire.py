@@ -17,7 +17,7 @@ def record(a: np.ndarray, dtype: str) -> dict:
 
 
 def envelope(t: str, body: dict) -> bytes:
-    return msgpack.packb({"v": 4, "t": t, "b": body}, use_bin_type=True)
+    return msgpack.packb({"v": 5, "t": t, "b": body}, use_bin_type=True)
 
 
 RNG = np.random.default_rng(15)
@@ -29,8 +29,8 @@ CONF = np.array([1.0, 0.5, 0.0, 1.0, 0.9, 0.3])
 MASK = RNG.random((5, 11)) > 0.5
 
 
-def test_schema_version_is_4():
-    assert SCHEMA_VERSION == 4
+def test_schema_version_is_5():
+    assert SCHEMA_VERSION == 5
 
 
 LEG = np.array([[101.5, 220.25], [np.nan, np.nan]])
@@ -76,3 +76,9 @@ def test_prediction_encodes_to_the_pinned_bytes_and_back():
     back = Prediction.from_msgpack(wire).prediction
     np.testing.assert_array_equal(back.visible, vis)
     np.testing.assert_array_equal(back.radius_px, rad)
+    assert back.offset_px is None
+    # with the offsets of the parts' visible centres (schema 5)
+    off = np.array([[0.25, -1.5], [1.0, 2.0], [np.nan, np.nan], [0.0, 0.0], [-3.0, 0.5], [np.nan, np.nan]])
+    wire = envelope("prediction", {**body, "offset_px": record(off, "<f8")})
+    assert Prediction("r", CuePrediction("cam_3", 9, XY, vis, rad, off)).to_msgpack() == wire
+    np.testing.assert_array_equal(Prediction.from_msgpack(wire).prediction.offset_px, off)

@@ -1,0 +1,153 @@
+"""Where a camera sees each blob cue's body part: the offset of its visible centre.
+
+A camera finds the head, a hand or a shoe as the centre of the skin or shoe pixels it sees.
+The cue is the centre of the part (``studio.body_shape``: head centre, hand centre, shoe
+centre), but the part's end at the next one is covered: the collar over the chin, the
+sleeve's end over the hand's wrist end, the trouser leg over the heel. What is seen is
+centred towards the free end, 1-1.5 px at 640x480 (docs/perception.md, "Where the medians'
+error lies"). No image shows how much is covered; the body model does. ``visible_offsets``
+draws the capsule body (``body.silhouette``: the capsules the studio draws) into each view
+around each cue's part, each pixel taking the capsule nearest the camera, and returns the
+offset of the part's visible pixels' centre from the projection of its cue point. Fusion
+sends it with its prediction (A.4); a camera reports the centre it measured less the offset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.silhouette import (CAPSULE_NAMES, CAPSULE_RADII_M, N_CAPSULES, NEAR_Z_M, body_capsules,
+                                      pose_points)
+from mocap_rt.names import CUE_NAMES
+from mocap_rt.studio.body_map import POINT_NAMES
+
+# the cues whose capsule's offset is predicted: the head and the hands. Not the shoes: the
+# model's ankle, where the trouser leg ends over the shoe, sits ~2 cm below the skeleton's on
+# the CMU walk (the leg's split is the subject's convention, docs/body.md), and its shoe
+# offsets were 3.2 px against the truth body's 0.9-1.7 (the hands': 2.1 against 1.9)
+OFFSET_CUES = ("head", "hand_l", "hand_r")
+# each cue's capsule (-1: none predicted)
+CUE_CAPSULES = np.array([CAPSULE_NAMES.index(n) if n in OFFSET_CUES else -1 for n in CUE_NAMES], np.int64)
+# each cue's covering capsule (collar, sleeve): what it hides of the part is the body's own
+# geometry; another part in front (the other hand, an arm across the face) depends on where the
+# fit put two limbs, and when it hides more than this fraction no offset is predicted
+COVER_CAPSULES = np.array([CAPSULE_NAMES.index(c) if n in OFFSET_CUES else -1 for n, c in
+                           zip(CUE_NAMES, ("neck", "forearm_l", "forearm_r", "shin_l", "shin_r", "torso"))], np.int64)
+OTHER_HIDDEN_FRAC = 0.1
+# samples across a part's window (its projected extent), at least 1 px apart
+WINDOW_SAMPLES = 24
+# fewer visible samples than this: no offset (the part is hidden; the prediction says so too)
+MIN_VISIBLE_SAMPLES = 4
+
+
+@njit(cache=True, nogil=True)
+def visible_offsets(A, B, radii, K, Rt, cue_caps, cover, out):
+    """out (C, len(cue_caps), 2): per camera (intrinsics ``K`` (C, 3, 3), ``Rt`` (C, 3, 4)
+    world -> camera) and cue, the centre of the pixels whose ray meets the cue's capsule
+    before any other capsule, less the projection of the capsule's centre (the cue point), px;
+    NaN where the cue has no capsule (``cue_caps`` -1), lies behind the camera or is hardly
+    seen. Capsules A, B (N, 3) world m, ``radii`` (N,) m, as ``body_capsules`` gives them.
+    Pixels are sampled over the capsule's projected extent, ``WINDOW_SAMPLES`` across."""
+    C = K.shape[0]
+    N = A.shape[0]
+    a_c = np.empty((N, 3))           # capsule ends, camera frame
+    u_c = np.empty((N, 3))           # b - a
+    for c in range(C):
+        fx, fy, sk, cx, cy = K[c, 0, 0], K[c, 1, 1], K[c, 0, 1], K[c, 0, 2], K[c, 1, 2]
+        for j in range(N):
+            for i in range(3):
+                pa = Rt[c, i, 0] * A[j, 0] + Rt[c, i, 1] * A[j, 1] + Rt[c, i, 2] * A[j, 2] + Rt[c, i, 3]
+                pb = Rt[c, i, 0] * B[j, 0] + Rt[c, i, 1] * B[j, 1] + Rt[c, i, 2] * B[j, 2] + Rt[c, i, 3]
+                a_c[j, i] = pa
+                u_c[j, i] = pb - pa
+        for k in range(cue_caps.shape[0]):
+            out[c, k, 0] = np.nan
+            out[c, k, 1] = np.nan
+            m = cue_caps[k]
+            if m < 0 or min(a_c[m, 2], a_c[m, 2] + u_c[m, 2]) - radii[m] < NEAR_Z_M:
+                continue
+            # the projected extent: both ends' spheres, a little wider than a circle of r f / z
+            x0 = y0 = np.inf
+            x1 = y1 = -np.inf
+            for e in range(2):
+                X = a_c[m, 0] + e * u_c[m, 0]
+                Y = a_c[m, 1] + e * u_c[m, 1]
+                Z = a_c[m, 2] + e * u_c[m, 2]
+                px, py = cx + (fx * X + sk * Y) / Z, cy + fy * Y / Z
+                rr = 1.5 * radii[m] * max(fx, fy) / (Z - radii[m])
+                x0, x1 = min(x0, px - rr), max(x1, px + rr)
+                y0, y1 = min(y0, py - rr), max(y1, py + rr)
+            step = max(1.0, max(x1 - x0, y1 - y0) / WINDOW_SAMPLES)
+            n = 0
+            n_other = 0                  # samples of the part that another part than its own hides
+            sx = 0.0
+            sy = 0.0
+            py = y0 + 0.5 * step
+            while py < y1:
+                dy = (py - cy) / fy
+                px = x0 + 0.5 * step
+                while px < x1:
+                    dx = (px - cx - sk * dy) / fx
+                    nd = np.sqrt(dx * dx + dy * dy + 1.0)
+                    d0, d1, d2 = dx / nd, dy / nd, 1.0 / nd
+                    sm = _ray_hit(d0, d1, d2, a_c[m], u_c[m], radii[m])
+                    if sm < np.inf:
+                        seen = True
+                        for j in range(N):
+                            if j != m and _ray_hit(d0, d1, d2, a_c[j], u_c[j], radii[j]) < sm:
+                                seen = False
+                                n_other += j != cover[k]
+                                break
+                        if seen:
+                            n += 1
+                            sx += px
+                            sy += py
+                    px += step
+                py += step
+            if n >= MIN_VISIBLE_SAMPLES and n_other <= OTHER_HIDDEN_FRAC * (n + n_other):
+                X = a_c[m, 0] + 0.5 * u_c[m, 0]
+                Y = a_c[m, 1] + 0.5 * u_c[m, 1]
+                Z = a_c[m, 2] + 0.5 * u_c[m, 2]
+                out[c, k, 0] = sx / n - (cx + (fx * X + sk * Y) / Z)
+                out[c, k, 1] = sy / n - (cy + fy * Y / Z)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ray_hit(d0, d1, d2, a, u, r):
+    """Distance along the unit ray (d0, d1, d2) from the camera centre to where it enters the
+    capsule with axis a -> a + u (camera frame) and radius r, or inf if it misses: the axis
+    point nearest the ray (exact), its sphere's entry point along the ray."""
+    ad = a[0] * d0 + a[1] * d1 + a[2] * d2
+    ud = u[0] * d0 + u[1] * d1 + u[2] * d2
+    uu = u[0] * u[0] + u[1] * u[1] + u[2] * u[2]
+    au = a[0] * u[0] + a[1] * u[1] + a[2] * u[2]
+    den = uu - ud * ud
+    t = 0.0 if den < 1e-15 else min(max((ad * ud - au) / den, 0.0), 1.0)
+    q0, q1, q2 = a[0] + t * u[0], a[1] + t * u[1], a[2] + t * u[2]
+    s = q0 * d0 + q1 * d1 + q2 * d2
+    dist2 = q0 * q0 + q1 * q1 + q2 * q2 - s * s
+    if s <= 0.0 or dist2 >= r * r:
+        return np.inf
+    return s - np.sqrt(r * r - dist2)
+
+
+def rig_rays(cameras) -> tuple[np.ndarray, np.ndarray]:
+    """Intrinsics (C, 3, 3) and world -> camera ``[R | t]`` (C, 3, 4) of the cameras, for
+    ``visible_offsets`` (lens distortion is not modelled: the offsets are differences)."""
+    return (np.ascontiguousarray(np.stack([c.K for c in cameras]), np.float64),
+            np.ascontiguousarray(np.stack([np.column_stack([c.R, c.t]) for c in cameras]), np.float64))
+
+
+def pose_visible_offsets(model, root: np.ndarray, angles: np.ndarray, K: np.ndarray, Rt: np.ndarray) -> np.ndarray:
+    """(C, 6, 2) ``visible_offsets`` of the capsule body in pose (``root``, ``angles``) of
+    ``model`` (a ``BodyModel``) for the cameras ``rig_rays`` gives."""
+    pos, rot = forward_kinematics(model, root, angles)
+    points = np.empty((len(POINT_NAMES), 3))
+    pose_points(pos, rot, float(np.radians(model.lengths.foot_pitch_deg)), points)
+    A, B = np.empty((N_CAPSULES, 3)), np.empty((N_CAPSULES, 3))
+    body_capsules(points, A, B)
+    out = np.empty((K.shape[0], len(CUE_CAPSULES), 2))
+    visible_offsets(A, B, CAPSULE_RADII_M, K, Rt, CUE_CAPSULES, COVER_CAPSULES, out)
+    return out
