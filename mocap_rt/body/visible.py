@@ -6,10 +6,11 @@ centre), but the part's end at the next one is covered: the collar over the chin
 sleeve's end over the hand's wrist end, the trouser leg over the heel. What is seen is
 centred towards the free end, 1-1.5 px at 640x480 (docs/perception.md, "Where the medians'
 error lies"). No image shows how much is covered; the body model does. ``visible_offsets``
-draws the capsule body (``body.silhouette``: the capsules the studio draws) into each view
-around each cue's part, each pixel taking the capsule nearest the camera, and returns the
-offset of the part's visible pixels' centre from the projection of its cue point. Fusion
-sends it with its prediction (A.4); a camera reports the centre it measured less the offset.
+casts each view's rays over each part (the capsule body of ``body.silhouette``, the one the
+studio draws), a ray seeing the capsule it meets first, and returns the offset of the centre
+of what is seen of the part from the projection of its cue point. Fusion sends it for the
+head and the hands with its prediction (A.4); a camera reports the centre it measured less
+the offset.
 """
 
 from __future__ import annotations

@@ -46,8 +46,8 @@ from mocap_rt.body.fit import BodyFitter, FitConfig
 from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
-from mocap_rt.body.visible import pose_visible_offsets, rig_rays
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
+from mocap_rt.body.visible import pose_visible_offsets, rig_rays
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
@@ -94,7 +94,7 @@ class FusionConfig:
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
     silhouettes: bool = True               # fit the body to the cameras' silhouettes when the cues carry them
-    visible_offsets: bool = True           # predictions carry where each blob's visible centre lies (body.visible)
+    visible_offsets: bool = True           # predictions carry where the head's and hands' visible centres lie
     identity: IdentityConfig = field(default_factory=IdentityConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)

@@ -56,9 +56,9 @@ def pair_best_errors(xy: np.ndarray, truth_xy: np.ndarray) -> np.ndarray:
 def along_limb_errors(xy: np.ndarray, truth_xy: np.ndarray, joint_xy: np.ndarray) -> np.ndarray:
     """(C, F, 6, 2) each cue's error split into its component along the limb, away from the
     joint it adjoins (``joint_xy`` (C, F, 6, 2): that joint's truth, ``ADJOINING_JOINT``;
-    NaN for the torso), and across it (the 2D cross product of the limb's direction and the error), under the
-    labelling ``pair_best_errors`` scores. NaN where undefined or the joint lies within 1 px of
-    the cue."""
+    NaN for the torso), and across it (the 2D cross product of the limb's direction and the
+    error), under the labelling ``pair_best_errors`` scores. NaN where undefined or the joint
+    lies within 1 px of the cue."""
     xy, truth_xy, joint_xy = (np.asarray(a, np.float64) for a in (xy, truth_xy, joint_xy))
     swaps = _pair_swaps(xy, truth_xy)
     truth, joint = _matched(truth_xy, swaps), _matched(joint_xy, swaps)
