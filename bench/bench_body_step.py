@@ -32,7 +32,8 @@ TARGET_MEDIAN_MS, TARGET_P99_MS = 5.0, 8.0
 def time_clip(rec_dir, frames: int | None, silhouettes: bool) -> dict[str, np.ndarray]:
     """Per-frame timings (ms) of ``BodyTracker.step`` over a recording's truth cues."""
     from mocap_rt.fusion.evaluate import truth_camera_cues
-    from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+    from mocap_rt.fusion.config import FusionConfig
+    from mocap_rt.fusion.tracker import BodyTracker
     from mocap_rt.io.recording import Recording
 
     rec = Recording(rec_dir)

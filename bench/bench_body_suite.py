@@ -54,7 +54,7 @@ def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False) 
     from mocap_rt.body.estimate import bone_lengths_from_joints
     from mocap_rt.fusion.evaluate import suite_metrics
     from mocap_rt.fusion.offline import process_recording
-    from mocap_rt.fusion.tracker import FusionConfig
+    from mocap_rt.fusion.config import FusionConfig
     from mocap_rt.io.recording import Recording
 
     rec = Recording(rec_dir)

@@ -28,9 +28,10 @@ import numpy as np
 
 from mocap_rt.body.estimate import bone_lengths_from_joints
 from mocap_rt.cues import CameraCues
+from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.evaluate import truth_camera_cues
 from mocap_rt.fusion.identity import IdentityConfig
-from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+from mocap_rt.fusion.tracker import BodyTracker
 from mocap_rt.fusion.views import CUE_RADII_M, RigProjector, predict_views
 from mocap_rt.geometry.rig import desktop_rig, ring_rig
 from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, CUE_JOINT_INDEX, JOINT_NAMES

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mocap_rt.config import load_dataclass
-from mocap_rt.fusion.tracker import FusionConfig
+from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.perception.pipeline import PerceptionConfig
 
 

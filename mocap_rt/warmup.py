@@ -198,7 +198,8 @@ def exercise(motion: Path | None, work: Path, rec: Path | None = None) -> None:
     import numpy as np
 
     from mocap_rt.cues import N_CUES, CameraCues, CompactSilhouette
-    from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+    from mocap_rt.fusion.config import FusionConfig
+    from mocap_rt.fusion.tracker import BodyTracker
     from mocap_rt.perception.pipeline import CameraPerceiver
 
     cam = rig.cameras[0]

@@ -62,7 +62,8 @@ class FusionSettings(NodeSettings):
 def make_tracker(rig, fps: float, bone_lengths=None):
     """D's ``BodyTracker`` with its default config at the stream's frame rate; the bone
     lengths are estimated from the first seconds of cues unless given."""
-    from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+    from mocap_rt.fusion.config import FusionConfig
+    from mocap_rt.fusion.tracker import BodyTracker
 
     return BodyTracker(rig, FusionConfig(fps=fps, bone_lengths=bone_lengths))
 

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from mocap_rt.body.skeleton import BoneLengths, read_bone_lengths, write_bone_lengths
 from mocap_rt.config import FileFormatError, dataclass_to_dict, dumps_toml, load_dataclass, read_toml
+from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.filter import FilterConfig
-from mocap_rt.fusion.tracker import FusionConfig
 from mocap_rt.pipeline_config import PipelineConfig, load_pipeline_config
 
 finite = st.floats(allow_nan=False, allow_infinity=True, width=64)
@@ -153,7 +153,7 @@ def _settings_dataclasses():
 
 def test_every_settings_dataclass_is_loadable_from_its_file(tmp_path):
     found = _settings_dataclasses()
-    assert {"mocap_rt.fusion.tracker.FusionConfig", "mocap_rt.perception.pipeline.PerceptionConfig",
+    assert {"mocap_rt.fusion.config.FusionConfig", "mocap_rt.perception.pipeline.PerceptionConfig",
             "mocap_rt.studio.render.RenderConfig", "mocap_rt.studio.scene.StudioScene"} <= set(found)
     for name, cls in found.items():
         default = cls()

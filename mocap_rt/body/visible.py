@@ -73,10 +73,7 @@ def visible_offsets(A, B, radii, K, Rt, cue_caps, cover, out):
             x0 = y0 = np.inf
             x1 = y1 = -np.inf
             for e in range(2):
-                X = a_c[m, 0] + e * u_c[m, 0]
-                Y = a_c[m, 1] + e * u_c[m, 1]
-                Z = a_c[m, 2] + e * u_c[m, 2]
-                px, py = cx + (fx * X + sk * Y) / Z, cy + fy * Y / Z
+                px, py, Z = _pixel(a_c[m], u_c[m], float(e), fx, fy, sk, cx, cy)
                 rr = 1.5 * radii[m] * max(fx, fy) / (Z - radii[m])
                 x0, x1 = min(x0, px - rr), max(x1, px + rr)
                 y0, y1 = min(y0, py - rr), max(y1, py + rr)
@@ -108,11 +105,17 @@ def visible_offsets(A, B, radii, K, Rt, cue_caps, cover, out):
                     px += step
                 py += step
             if n >= MIN_VISIBLE_SAMPLES and n_other <= OTHER_HIDDEN_FRAC * (n + n_other):
-                X = a_c[m, 0] + 0.5 * u_c[m, 0]
-                Y = a_c[m, 1] + 0.5 * u_c[m, 1]
-                Z = a_c[m, 2] + 0.5 * u_c[m, 2]
-                out[c, k, 0] = sx / n - (cx + (fx * X + sk * Y) / Z)
-                out[c, k, 1] = sy / n - (cy + fy * Y / Z)
+                uc, vc, _ = _pixel(a_c[m], u_c[m], 0.5, fx, fy, sk, cx, cy)     # the cue point
+                out[c, k, 0] = sx / n - uc
+                out[c, k, 1] = sy / n - vc
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pixel(a, u, t, fx, fy, sk, cx, cy):
+    """Pixel (x, y) and depth of the axis point a + t u (camera frame) under intrinsics
+    (fx, fy, skew, cx, cy)."""
+    X, Y, Z = a[0] + t * u[0], a[1] + t * u[1], a[2] + t * u[2]
+    return cx + (fx * X + sk * Y) / Z, cy + fy * Y / Z, Z
 
 
 @njit(cache=True, nogil=True, inline="always")

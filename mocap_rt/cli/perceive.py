@@ -87,7 +87,8 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
     closed_loop = closed_loop and C >= 2
     if closed_loop:
         from mocap_rt.fusion.offline import run_tracker
-        from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+        from mocap_rt.fusion.config import FusionConfig
+        from mocap_rt.fusion.tracker import BodyTracker
 
         fc = replace(fusion_config or FusionConfig(), fps=float(rec.fps))
         run_tracker(BodyTracker(rec.rig, fc), frame_cues, n, progress)

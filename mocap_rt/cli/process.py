@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-# the choices of --views / --ik (mocap_rt.fusion.tracker.VIEW_MODES / IK_MODES; not imported
+# the choices of --views / --ik (mocap_rt.fusion.config.VIEW_MODES / IK_MODES; not imported
 # here so that ``mocap-rt --help`` stays quick; tests/fusion checks they agree)
 VIEW_MODES = ("all", "pair")
 IK_MODES = ("analytic", "ccd")
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mocap_rt.body.skeleton import read_bone_lengths
     from mocap_rt.fusion.offline import process_recording
-    from mocap_rt.fusion.tracker import FusionConfig
+    from mocap_rt.fusion.config import FusionConfig
     from mocap_rt.io.files import claim_outputs, refuse_input_as_output
     from mocap_rt.pipeline_config import load_pipeline_config
 

@@ -27,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.evaluate import Accuracy, accuracy, align_truth, truth_camera_cues
 from mocap_rt.fusion.identity import ALTERNATIVE_PAIRS, ALTERNATIVES
-from mocap_rt.fusion.tracker import BodyTracker, FusionConfig, FusionResult
+from mocap_rt.fusion.tracker import BodyTracker, FusionResult
 from mocap_rt.names import CUE_NAMES, JOINT_NAMES, N_CUES
 
 log = logging.getLogger(__name__)

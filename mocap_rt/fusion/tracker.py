@@ -21,7 +21,10 @@
    switched refitted with its new labels.
 
 ``predict(frame)`` extrapolates the filter to a coming frame and gives every camera the
-predicted 2D cues with Z-buffer visibility and blob radius (A.4).
+predicted 2D cues with Z-buffer visibility and blob radius (A.4), and where the last pose's
+head and hands show their centres (``body.visible``).
+
+Settings: ``FusionConfig`` (``fusion.config``).
 
 Bone lengths: ``FusionConfig.bone_lengths`` if given; else a default adult until
 ``calibration_s`` of cues have been seen, then ``estimate_bone_lengths`` of them
@@ -33,25 +36,25 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
-from mocap_rt.body.analytic import (AnalyticConfig, analytic_pose, body_axes, pan_angle, refine_pan,
-                                   refine_swivel)
+from mocap_rt.body.analytic import analytic_pose, body_axes, pan_angle, refine_pan, refine_swivel
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
-from mocap_rt.body.ccd import CcdConfig, solve_ccd
+from mocap_rt.body.ccd import solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
-from mocap_rt.body.fit import BodyFitter, FitConfig
+from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
 from mocap_rt.body.visible import pose_visible_offsets, rig_rays
 from mocap_rt.cues import CameraCues, CuePrediction
-from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
-                                      crossed_legs_cm2, decide, fill_missing, score_hypotheses, swap_pairs)
+from mocap_rt.fusion.config import FusionConfig
+from mocap_rt.fusion.filter import CueFilter
+from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityState, crossed_legs_cm2, decide,
+                                      fill_missing, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair,
                                    head_on_trunk, predict_views, reject_duplicates, triangulate_cues)
@@ -64,50 +67,12 @@ log = logging.getLogger(__name__)
 
 _EFFECTOR_CUES = np.array([CUE_INDEX[n] for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
-VIEW_MODES = ("all", "pair")
 # cues whose views may be chosen by consensus (the torso's 2D points are silhouette
 # centres that disagree across views by design; it keeps the plain drop-worst rejection)
 _CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
 _NO_CUES = np.zeros(N_CUES, dtype=bool)
-IK_MODES = ("analytic", "ccd")
 _HIPS = [J["hip_l"], J["hip_r"]]
 _FEET_ALT = ALTERNATIVES.index("feet")
-
-
-@dataclass(frozen=True)
-class FusionConfig:
-    """Fusion settings; each default lives here (units in the names)."""
-
-    fps: float = 30.0                      # frame rate, converts frame numbers to seconds
-    views: str = "all"                     # "all" or "pair" (A.6 frontal pair)
-    max_reproj_px: float = 6.0             # outlier rejection threshold (head, hands, feet)
-    torso_max_reproj_px: float = 15.0      # the same for the torso (its 2D points are silhouette
-                                           # centres, not projections of one 3D point)
-    consensus_views: bool = False          # restart outlier rejection from the largest consensus set of views
-                                           # (views.triangulate_cues); off: docs/body.md says why
-    min_confidence: float = 0.05           # 2D cues below this are ignored
-    fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
-    duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
-    use_filtered: bool = False             # IK on filtered (True) or measured (False) cues
-    ik: str = "analytic"                   # "analytic" or "ccd" (analytic + CCD refinement)
-    bone_lengths: BoneLengths | None = None
-    calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
-    velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
-    silhouettes: bool = True               # fit the body to the cameras' silhouettes when the cues carry them
-    visible_offsets: bool = True           # predictions carry where the head's and hands' visible centres lie
-    identity: IdentityConfig = field(default_factory=IdentityConfig)
-    fit: FitConfig = field(default_factory=FitConfig)
-    filter: FilterConfig = field(default_factory=FilterConfig)
-    analytic: AnalyticConfig = field(default_factory=AnalyticConfig)
-    ccd: CcdConfig = field(default_factory=lambda: CcdConfig(angle_tolerance_deg=20.0, max_iterations=30))
-
-    def __post_init__(self) -> None:
-        if self.views not in VIEW_MODES:
-            raise ValueError(f"FusionConfig.views must be one of {VIEW_MODES}, got {self.views!r}")
-        if self.ik not in IK_MODES:
-            raise ValueError(f"FusionConfig.ik must be one of {IK_MODES}, got {self.ik!r}")
-        if self.fps <= 0:
-            raise ValueError(f"FusionConfig.fps must be > 0, got {self.fps}")
 
 
 class BodyTracker:
@@ -153,6 +118,11 @@ class BodyTracker:
     def bvh_skeleton(self) -> BvhSkeleton:
         """The BVH hierarchy matching ``FusionResult.bvh_frame`` (changes once, at calibration)."""
         return self._bvh
+
+    @property
+    def pose_model(self):
+        """The model the poses' angles are of (CCD refines on the full one)."""
+        return self.model_full if self.config.ik == "ccd" else self.model
 
     # ------------------------------------------------------------------ 2D -> 3D
     def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -226,18 +196,15 @@ class BodyTracker:
         cues_ik = self.fill_missing(cues_ik, axes)
         root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic, swivel,
                                      *self._fitter.elbow_views(targets))
-        model = self.model
         if self.config.ik == "ccd":
-            res = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
-                            reference=angles, config=self.config.ccd)
-            angles = res.angles
-            model = self.model_full
-        joints = forward_kinematics(model, root, angles)[0]
+            angles = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
+                               reference=angles, config=self.config.ccd).angles
+        joints = forward_kinematics(self.pose_model, root, angles)[0]
         return root, angles, joints
 
     def bvh_row(self, root: np.ndarray, angles: np.ndarray) -> np.ndarray:
         """BVH motion row of a pose of this tracker's model (both presets share the hierarchy)."""
-        return bvh_frame(self.model_full if self.config.ik == "ccd" else self.model, root, angles)
+        return bvh_frame(self.pose_model, root, angles)
 
     def finish_calibration(self) -> bool:
         """Estimate the bone lengths now from the frames seen so far (e.g. a clip shorter
@@ -454,7 +421,6 @@ class BodyTracker:
         xy, vis, rad = predict_views(self._proj, X, CUE_RADII_M)
         off = [None] * len(self._names)
         if self.config.visible_offsets and self._last_pose is not None:
-            off = pose_visible_offsets(self.model_full if self.config.ik == "ccd" else self.model,
-                                       *self._last_pose, *self._rays)
+            off = pose_visible_offsets(self.pose_model, *self._last_pose, *self._rays)
         return {name: CuePrediction(name, int(frame), xy[c], vis[c], rad[c], off[c])
                 for c, name in enumerate(self._names)}

@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
+from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.evaluate import heading_deg, mirrored_frames, truth_camera_cues, wrap_deg
 from mocap_rt.fusion.filter import CueFilter
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
                                       crossed_legs_cm2, decide, segment_distance, swap_pairs, swap_swivel)
-from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+from mocap_rt.fusion.tracker import BodyTracker
 from mocap_rt.io.recording import Recording
 from mocap_rt.names import CUE_NAMES, J
 

@@ -7,7 +7,8 @@ import pytest
 
 from mocap_rt.body.estimate import bone_lengths_from_joints
 from mocap_rt.cues import CameraCues, CuePrediction
-from mocap_rt.fusion.tracker import BodyTracker, FusionConfig
+from mocap_rt.fusion.config import FusionConfig
+from mocap_rt.fusion.tracker import BodyTracker
 from mocap_rt.geometry.rig import desktop_rig, ring_rig
 from mocap_rt.io.bvh import read_bvh
 from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES

@@ -1,0 +1,54 @@
+"""Fusion's settings (``FusionConfig``): each default lives here, units in the names.
+
+What ``fusion.tracker.BodyTracker`` runs on; read from TOML by ``mocap_rt.pipeline_config``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from mocap_rt.body.analytic import AnalyticConfig
+from mocap_rt.body.ccd import CcdConfig
+from mocap_rt.body.fit import FitConfig
+from mocap_rt.body.skeleton import BoneLengths
+from mocap_rt.fusion.filter import FilterConfig
+from mocap_rt.fusion.identity import IdentityConfig
+
+VIEW_MODES = ("all", "pair")
+IK_MODES = ("analytic", "ccd")
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Fusion settings; each default lives here (units in the names)."""
+
+    fps: float = 30.0                      # frame rate, converts frame numbers to seconds
+    views: str = "all"                     # "all" or "pair" (A.6 frontal pair)
+    max_reproj_px: float = 6.0             # outlier rejection threshold (head, hands, feet)
+    torso_max_reproj_px: float = 15.0      # the same for the torso (its 2D points are silhouette
+                                           # centres, not projections of one 3D point)
+    consensus_views: bool = False          # restart outlier rejection from the largest consensus set of views
+                                           # (views.triangulate_cues); off: docs/body.md says why
+    min_confidence: float = 0.05           # 2D cues below this are ignored
+    fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
+    duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
+    use_filtered: bool = False             # IK on filtered (True) or measured (False) cues
+    ik: str = "analytic"                   # "analytic" or "ccd" (analytic + CCD refinement)
+    bone_lengths: BoneLengths | None = None
+    calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
+    velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
+    silhouettes: bool = True               # fit the body to the cameras' silhouettes when the cues carry them
+    visible_offsets: bool = True           # predictions carry where the head's and hands' visible centres lie
+    identity: IdentityConfig = field(default_factory=IdentityConfig)
+    fit: FitConfig = field(default_factory=FitConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    analytic: AnalyticConfig = field(default_factory=AnalyticConfig)
+    ccd: CcdConfig = field(default_factory=lambda: CcdConfig(angle_tolerance_deg=20.0, max_iterations=30))
+
+    def __post_init__(self) -> None:
+        if self.views not in VIEW_MODES:
+            raise ValueError(f"FusionConfig.views must be one of {VIEW_MODES}, got {self.views!r}")
+        if self.ik not in IK_MODES:
+            raise ValueError(f"FusionConfig.ik must be one of {IK_MODES}, got {self.ik!r}")
+        if self.fps <= 0:
+            raise ValueError(f"FusionConfig.fps must be > 0, got {self.fps}")
