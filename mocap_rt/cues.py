@@ -201,6 +201,9 @@ class CuePrediction:
     offset_px : (6, 2) float64 or None: the offset of the centre of what the camera will see of
         each blob's body part from the cue's point (``body.visible``: collar, sleeve and trouser
         leg cover one end); the camera reports the centre it measures less this (NaN: none).
+    shape_px : (6, 2, 2) float64 or None: the covariance of what the camera will see of each
+        blob's body part, px^2 (``body.visible``; the shoes: two that touch are split along the
+        seam these shapes predict); NaN: none.
     """
 
     camera: str
@@ -209,6 +212,7 @@ class CuePrediction:
     visible: np.ndarray
     radius_px: np.ndarray
     offset_px: np.ndarray | None = None
+    shape_px: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "xy", _arr(self.xy, (N_CUES, 2), np.float64, "xy"))
@@ -216,12 +220,16 @@ class CuePrediction:
         object.__setattr__(self, "radius_px", _arr(self.radius_px, (N_CUES,), np.float64, "radius_px"))
         if self.offset_px is not None:
             object.__setattr__(self, "offset_px", _arr(self.offset_px, (N_CUES, 2), np.float64, "offset_px"))
+        if self.shape_px is not None:
+            object.__setattr__(self, "shape_px", _arr(self.shape_px, (N_CUES, 2, 2), np.float64, "shape_px"))
 
     def to_dict(self) -> dict:
         return {"camera": self.camera, "frame": int(self.frame), "xy": self.xy,
                 "visible": self.visible, "radius_px": self.radius_px,
-                **({} if self.offset_px is None else {"offset_px": self.offset_px})}
+                **({} if self.offset_px is None else {"offset_px": self.offset_px}),
+                **({} if self.shape_px is None else {"shape_px": self.shape_px})}
 
     @classmethod
     def from_dict(cls, d: dict) -> "CuePrediction":
-        return cls(str(d["camera"]), int(d["frame"]), d["xy"], d["visible"], d["radius_px"], d.get("offset_px"))
+        return cls(str(d["camera"]), int(d["frame"]), d["xy"], d["visible"], d["radius_px"], d.get("offset_px"),
+                   d.get("shape_px"))

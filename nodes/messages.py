@@ -42,9 +42,9 @@ from mocap_rt.names import JOINT_NAMES
 from nodes.codec import (Decoder, Envelope, MessageError, check_name, decode_array, encode_array,  # noqa: F401
                          encode_fields, get_bytes, get_float, get_float_map, get_int, get_names, get_str, is_int)
 
-SCHEMA_VERSION = 5          # 2: Pose carries the bone lengths of its skeleton; 3: Cues may carry a silhouette;
+SCHEMA_VERSION = 6          # 2: Pose carries the bone lengths of its skeleton; 3: Cues may carry a silhouette;
                             # 4: ... and where the legs meet the shoes; 5: Prediction may carry the offsets
-                            # of the parts' visible centres
+                            # of the parts' visible centres; 6: ... and the shapes of the visible shoes
 KEY_ROOT = "mocap"
 N_JOINTS = len(JOINT_NAMES)
 MAX_BVH_CHANNELS = 4096
@@ -190,12 +190,13 @@ def _silhouette_fields(d) -> dict:
 @dataclass(frozen=True, slots=True)
 class Prediction(Message):
     """Fusion -> camera worker: where the cues should be in ``prediction.frame`` (seed A.4),
-    and since schema 5 (optional ``offset_px``) where the head's and hands' visible centres
-    lie from their cue points (``mocap_rt.body.visible``)."""
+    since schema 5 (optional ``offset_px``) where the head's and hands' visible centres lie
+    from their cue points, and since schema 6 (optional ``shape_px``) the covariances of the
+    visible shoes (``mocap_rt.body.visible``)."""
 
     TYPE: ClassVar[str] = "prediction"
     MAX_BYTES: ClassVar[int] = 4096
-    OPTIONAL_FIELDS: ClassVar[tuple[str, ...]] = ("offset_px",)
+    OPTIONAL_FIELDS: ClassVar[tuple[str, ...]] = ("offset_px", "shape_px")
     rig: str
     prediction: CuePrediction
 
@@ -210,6 +211,8 @@ class Prediction(Message):
                   "radius_px": decode_array(b.get("radius_px"), "radius_px", (N_CUES,), "<f8")}
         if "offset_px" in b:
             fields["offset_px"] = decode_array(b["offset_px"], "offset_px", (N_CUES, 2), "<f8")
+        if "shape_px" in b:
+            fields["shape_px"] = decode_array(b["shape_px"], "shape_px", (N_CUES, 2, 2), "<f8")
         return cls(get_str(b, "rig", True), CuePrediction.from_dict(fields))
 
 

@@ -5,12 +5,14 @@ The cue is the centre of the part (``studio.body_shape``: head centre, hand cent
 centre), but the part's end at the next one is covered: the collar over the chin, the
 sleeve's end over the hand's wrist end, the trouser leg over the heel. What is seen is
 centred towards the free end, 1-1.5 px at 640x480 (docs/perception.md, "Where the medians'
-error lies"). No image shows how much is covered; the body model does. ``visible_offsets``
+error lies"). No image shows how much is covered; the body model does. ``visible_parts``
 casts each view's rays over each part (the capsule body of ``body.silhouette``, the one the
 studio draws), a ray seeing the capsule it meets first, and returns the offset of the centre
-of what is seen of the part from the projection of its cue point. Fusion sends it for the
-head and the hands with its prediction (A.4); a camera reports the centre it measured less
-the offset.
+of what is seen of the part from the projection of its cue point, and the covariance of what
+is seen. Fusion sends the offsets of the head and the hands with its prediction (A.4); a
+camera reports the centre it measured less the offset. The shoes' covariances, sent when
+``FusionConfig.shoe_shapes_max_speed_mps`` allows (off by default), split shoes that touch
+(docs/perception.md, Blobs, step 9).
 """
 
 from __future__ import annotations
@@ -29,34 +31,47 @@ from mocap_rt.studio.body_map import POINT_NAMES
 # the CMU walk (the leg's split is the subject's convention, docs/body.md), and its shoe
 # offsets were 3.2 px against the truth body's 0.9-1.7 (the hands': 2.1 against 1.9)
 OFFSET_CUES = ("head", "hand_l", "hand_r")
-# each cue's capsule (-1: none predicted)
-CUE_CAPSULES = np.array([CAPSULE_NAMES.index(n) if n in OFFSET_CUES else -1 for n in CUE_NAMES], np.int64)
-# each cue's covering capsule (collar, sleeve): what it hides of the part is the body's own
-# geometry; another part in front (the other hand, an arm across the face) depends on where the
-# fit put two limbs, and when it hides more than this fraction no offset is predicted
-COVER_CAPSULES = np.array([CAPSULE_NAMES.index(c) if n in OFFSET_CUES else -1 for n, c in
-                           zip(CUE_NAMES, ("neck", "forearm_l", "forearm_r", "shin_l", "shin_r", "torso"))], np.int64)
+# the cues whose visible shape (covariance) is predicted: the shoes, which touch side by side
+# when the person stands, and are split along the seam the shapes predict (perception.blobs)
+SHAPE_CUES = ("foot_l", "foot_r")
+# each blob cue's capsule (-1: the torso, none)
+CUE_CAPSULES = np.array([CAPSULE_NAMES.index(n) if n in OFFSET_CUES + SHAPE_CUES else -1 for n in CUE_NAMES],
+                        np.int64)
+# ... without the shoes (their shapes not wanted: half the cost)
+OFFSET_CAPSULES = np.where(np.isin(CUE_NAMES, OFFSET_CUES), CUE_CAPSULES, -1)
+# each cue's covering capsule (collar, sleeve, trouser leg): what it hides of the part is the
+# body's own geometry; another part in front (the other hand, an arm across the face) depends
+# on where the fit put two limbs, and when it hides more than this fraction no offset is predicted
+COVER_CAPSULES = np.array([CAPSULE_NAMES.index(c) if k >= 0 else -1 for k, c in
+                           zip(CUE_CAPSULES, ("neck", "forearm_l", "forearm_r", "shin_l", "shin_r", "torso"))],
+                          np.int64)
 OTHER_HIDDEN_FRAC = 0.1
 # samples across a part's window (its projected extent), at least 1 px apart
 WINDOW_SAMPLES = 24
-# fewer visible samples than this: no offset (the part is hidden; the prediction says so too)
+# fewer visible samples than this: nothing predicted (the part is hidden; the prediction says so too)
 MIN_VISIBLE_SAMPLES = 4
+# ``visible_parts`` columns: the visible centre's offset (x, y), its covariance (xx, xy, yy),
+# the fraction of the part that a capsule other than its own cover hides
+N_PART_STATS = 6
 
 
 @njit(cache=True, nogil=True)
-def visible_offsets(A, B, radii, K, Rt, cue_caps, cover, out):
-    """out (C, len(cue_caps), 2): per camera (intrinsics ``K`` (C, 3, 3), ``Rt`` (C, 3, 4)
-    world -> camera) and cue, the centre of the pixels whose ray meets the cue's capsule
-    before any other capsule, less the projection of the capsule's centre (the cue point), px;
-    NaN where the cue has no capsule (``cue_caps`` -1), lies behind the camera or is hardly
-    seen. Capsules A, B (N, 3) world m, ``radii`` (N,) m, as ``body_capsules`` gives them.
-    Pixels are sampled over the capsule's projected extent, ``WINDOW_SAMPLES`` across."""
+def visible_parts(A, B, radii, K, Rt, size, cue_caps, cover, out):
+    """out (C, len(cue_caps), N_PART_STATS): per camera (intrinsics ``K`` (C, 3, 3), ``Rt``
+    (C, 3, 4) world -> camera, image ``size`` (C, 2) width, height) and cue, of the image's
+    pixels whose ray meets the cue's capsule before any other capsule: their centre less the
+    projection of the capsule's centre (the cue point), px; their covariance, px^2; the
+    fraction of the part's pixels that a capsule other than ``cover`` hides. NaN where the
+    cue has no capsule (``cue_caps`` -1), lies behind the camera or is hardly seen. Capsules
+    A, B (N, 3) world m, ``radii`` (N,) m, as ``body_capsules`` gives them. Pixels are
+    sampled over the capsule's projected extent, ``WINDOW_SAMPLES`` across."""
     C = K.shape[0]
     N = A.shape[0]
     a_c = np.empty((N, 3))           # capsule ends, camera frame
     u_c = np.empty((N, 3))           # b - a
     for c in range(C):
         fx, fy, sk, cx, cy = K[c, 0, 0], K[c, 1, 1], K[c, 0, 1], K[c, 0, 2], K[c, 1, 2]
+        w, h = size[c, 0] - 0.5, size[c, 1] - 0.5        # pixel centres are integers
         for j in range(N):
             for i in range(3):
                 pa = Rt[c, i, 0] * A[j, 0] + Rt[c, i, 1] * A[j, 1] + Rt[c, i, 2] * A[j, 2] + Rt[c, i, 3]
@@ -64,11 +79,11 @@ def visible_offsets(A, B, radii, K, Rt, cue_caps, cover, out):
                 a_c[j, i] = pa
                 u_c[j, i] = pb - pa
         for k in range(cue_caps.shape[0]):
-            out[c, k, 0] = np.nan
-            out[c, k, 1] = np.nan
+            out[c, k, :] = np.nan
             m = cue_caps[k]
             if m < 0 or min(a_c[m, 2], a_c[m, 2] + u_c[m, 2]) - radii[m] < NEAR_Z_M:
                 continue
+            uc, vc, _ = _pixel(a_c[m], u_c[m], 0.5, fx, fy, sk, cx, cy)     # the cue point
             # the projected extent: both ends' spheres, a little wider than a circle of r f / z
             x0 = y0 = np.inf
             x1 = y1 = -np.inf
@@ -78,10 +93,10 @@ def visible_offsets(A, B, radii, K, Rt, cue_caps, cover, out):
                 x0, x1 = min(x0, px - rr), max(x1, px + rr)
                 y0, y1 = min(y0, py - rr), max(y1, py + rr)
             step = max(1.0, max(x1 - x0, y1 - y0) / WINDOW_SAMPLES)
+            x0, y0, x1, y1 = max(x0, -0.5), max(y0, -0.5), min(x1, w), min(y1, h)
             n = 0
             n_other = 0                  # samples of the part that another part than its own hides
-            sx = 0.0
-            sy = 0.0
+            sx = sy = sxx = sxy = syy = 0.0
             py = y0 + 0.5 * step
             while py < y1:
                 dy = (py - cy) / fy
@@ -100,14 +115,22 @@ def visible_offsets(A, B, radii, K, Rt, cue_caps, cover, out):
                                 break
                         if seen:
                             n += 1
-                            sx += px
-                            sy += py
+                            ex, ey = px - uc, py - vc
+                            sx += ex
+                            sy += ey
+                            sxx += ex * ex
+                            sxy += ex * ey
+                            syy += ey * ey
                     px += step
                 py += step
-            if n >= MIN_VISIBLE_SAMPLES and n_other <= OTHER_HIDDEN_FRAC * (n + n_other):
-                uc, vc, _ = _pixel(a_c[m], u_c[m], 0.5, fx, fy, sk, cx, cy)     # the cue point
-                out[c, k, 0] = sx / n - uc
-                out[c, k, 1] = sy / n - vc
+            if n >= MIN_VISIBLE_SAMPLES:
+                mx, my = sx / n, sy / n
+                out[c, k, 0] = mx
+                out[c, k, 1] = my
+                out[c, k, 2] = sxx / n - mx * mx
+                out[c, k, 3] = sxy / n - mx * my
+                out[c, k, 4] = syy / n - my * my
+                out[c, k, 5] = n_other / (n + n_other)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -137,21 +160,43 @@ def _ray_hit(d0, d1, d2, a, u, r):
     return s - np.sqrt(r * r - dist2)
 
 
-def rig_rays(cameras) -> tuple[np.ndarray, np.ndarray]:
-    """Intrinsics (C, 3, 3) and world -> camera ``[R | t]`` (C, 3, 4) of the cameras, for
-    ``visible_offsets`` (lens distortion is not modelled: the offsets are differences)."""
+def rig_rays(cameras) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Intrinsics (C, 3, 3), world -> camera ``[R | t]`` (C, 3, 4) and image sizes (C, 2) of
+    the cameras, for ``visible_parts`` (lens distortion is not modelled: the offsets are
+    differences)."""
     return (np.ascontiguousarray(np.stack([c.K for c in cameras]), np.float64),
-            np.ascontiguousarray(np.stack([np.column_stack([c.R, c.t]) for c in cameras]), np.float64))
+            np.ascontiguousarray(np.stack([np.column_stack([c.R, c.t]) for c in cameras]), np.float64),
+            np.array([[c.width, c.height] for c in cameras], np.float64))
 
 
-def pose_visible_offsets(model, root: np.ndarray, angles: np.ndarray, K: np.ndarray, Rt: np.ndarray) -> np.ndarray:
-    """(C, 6, 2) ``visible_offsets`` of the capsule body in pose (``root``, ``angles``) of
-    ``model`` (a ``BodyModel``) for the cameras ``rig_rays`` gives."""
+def pose_visible_parts(model, root: np.ndarray, angles: np.ndarray, K: np.ndarray, Rt: np.ndarray,
+                       size: np.ndarray, cue_caps: np.ndarray = CUE_CAPSULES) -> np.ndarray:
+    """(C, 6, N_PART_STATS) ``visible_parts`` of the capsule body in pose (``root``,
+    ``angles``) of ``model`` (a ``BodyModel``) for the cameras ``rig_rays`` gives, for the
+    cues of ``cue_caps`` (``CUE_CAPSULES`` or ``OFFSET_CAPSULES``)."""
     pos, rot = forward_kinematics(model, root, angles)
     points = np.empty((len(POINT_NAMES), 3))
     pose_points(pos, rot, float(np.radians(model.lengths.foot_pitch_deg)), points)
     A, B = np.empty((N_CAPSULES, 3)), np.empty((N_CAPSULES, 3))
     body_capsules(points, A, B)
-    out = np.empty((K.shape[0], len(CUE_CAPSULES), 2))
-    visible_offsets(A, B, CAPSULE_RADII_M, K, Rt, CUE_CAPSULES, COVER_CAPSULES, out)
+    out = np.empty((K.shape[0], len(CUE_CAPSULES), N_PART_STATS))
+    visible_parts(A, B, CAPSULE_RADII_M, K, Rt, size, cue_caps, COVER_CAPSULES, out)
     return out
+
+
+_OFFSET_ROWS = np.array([n in OFFSET_CUES for n in CUE_NAMES])
+_SHAPE_ROWS = np.array([n in SHAPE_CUES for n in CUE_NAMES])
+
+
+def part_offsets(parts: np.ndarray) -> np.ndarray:
+    """(..., 6, 2) the visible centres' offsets of ``visible_parts`` for ``OFFSET_CUES``,
+    NaN for the other cues and where another part hides more than ``OTHER_HIDDEN_FRAC``."""
+    keep = _OFFSET_ROWS & (parts[..., 5] <= OTHER_HIDDEN_FRAC)          # NaN: False
+    return np.where(keep[..., None], parts[..., :2], np.nan)
+
+
+def part_shapes(parts: np.ndarray) -> np.ndarray:
+    """(..., 6, 2, 2) the visible parts' covariances of ``visible_parts`` for ``SHAPE_CUES``
+    (NaN for the other cues)."""
+    cov = parts[..., [2, 3, 3, 4]].reshape(parts.shape[:-1] + (2, 2))
+    return np.where(_SHAPE_ROWS[:, None, None], cov, np.nan)

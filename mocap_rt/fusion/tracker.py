@@ -49,7 +49,7 @@ from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
-from mocap_rt.body.visible import pose_visible_offsets, rig_rays
+from mocap_rt.body.visible import CUE_CAPSULES, OFFSET_CAPSULES, part_offsets, part_shapes, pose_visible_parts, rig_rays
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.filter import CueFilter
@@ -419,8 +419,19 @@ class BodyTracker:
         """Predicted cues of every rig camera for ``frame`` (A.4)."""
         X = self.filter.predict_at(frame / self.config.fps)
         xy, vis, rad = predict_views(self._proj, X, CUE_RADII_M)
-        off = [None] * len(self._names)
+        off = shape = [None] * len(self._names)
         if self.config.visible_offsets and self._last_pose is not None:
-            off = pose_visible_offsets(self.pose_model, *self._last_pose, *self._rays)
-        return {name: CuePrediction(name, int(frame), xy[c], vis[c], rad[c], off[c])
+            # the shoes' shapes (docs/perception.md, Blobs, step 9; off by default): once the
+            # facing is acquired (while it is open the shoe blobs' legs decide it, and a split
+            # shaped by a body facing the wrong way kept it so), and while both feet stand (a
+            # moving foot's prediction lags, and a shape centred on it takes the other shoe)
+            speed = np.linalg.norm(self.filter.vel[[C_FOOT_L, C_FOOT_R]], axis=1).max()
+            shapes = (self.identity.frames >= self.config.identity.acquire_frames
+                      and speed < self.config.shoe_shapes_max_speed_mps)
+            parts = pose_visible_parts(self.pose_model, *self._last_pose, *self._rays,
+                                       CUE_CAPSULES if shapes else OFFSET_CAPSULES)
+            off = part_offsets(parts)
+            if shapes:
+                shape = part_shapes(parts)
+        return {name: CuePrediction(name, int(frame), xy[c], vis[c], rad[c], off[c], shape[c])
                 for c, name in enumerate(self._names)}

@@ -148,7 +148,7 @@ class BlobTracker:
     def step(self, skin_roi: np.ndarray, roi_xy: tuple[int, int], person_box_roi: tuple[int, int, int, int],
              top_roi: tuple[float, float] | None, pred_xy: np.ndarray | None = None,
              pred_visible: np.ndarray | None = None, pred_radius: np.ndarray | None = None,
-             sil_roi: np.ndarray | None = None) -> BlobFrame:
+             sil_roi: np.ndarray | None = None, pred_shape: np.ndarray | None = None) -> BlobFrame:
         """Track one frame.
 
         skin_roi : (h, w) colour map of the region of interest, float32 (>= 0.5 = colour pixel) or
@@ -161,6 +161,8 @@ class BlobTracker:
             image pixels (from fusion, A.4); None = use the tracker's own 2D prediction.
         sil_roi : (h, w) uint8 silhouette of the ROI (> 0 = person) for occlusion completion;
             None = no completion.
+        pred_shape : (K, 2, 2) predicted covariance of each blob, px^2 (NaN: none), for
+            ``label_by_shape``: it replaces the shape when last apart.
         """
         p = self.params
         K = len(self.roles)
@@ -176,6 +178,9 @@ class BlobTracker:
         kp = self._kp if sil_roi is not None and p.mirror_iters else self._kp_nomirror
         box = (bx, by, bx + bw, by + bh)
         centers, gate, found = self._centers, self._gate, self._found
+        shape = self._shape_arg
+        if pred_shape is not None and p.label_by_shape:
+            shape = np.where(np.isfinite(pred_shape[:, :1, :1]), pred_shape, self._apart_cov)
         apart, n_found = label_frame(
             skin_roi, sil, *box, self._xy, self._vel, self._coast, self._radius, p.max_coast_frames,
             np.asarray(pred_xy, np.float64) if use_pred else _NAN_K2,
@@ -183,14 +188,14 @@ class BlobTracker:
             use_pred, float(ox), float(oy), self._gate_params, p.snap_to_regions, SNAP_NEAR_GATES, SNAP_WINDOW_GATES,
             p.acquire_min_area_px, SNAP_MAX_REGIONS, self._size, visible, kp,
             self._sums, self._out_xy, self._out_cov, self._out_area, self._out_contours, self._has_contour,
-            self._shape_arg, centers, gate, found)
+            shape, centers, gate, found)
         acquired = self._none_acquired
         if n_found < K:
             acquired = self._acquire(skin_roi, box, centers, found, ~found, top_roi, self._last_seen - (ox, oy))
             if acquired.any():
                 centers = np.where(acquired[:, None], self._acq_centers, centers)
                 gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
-                found = self._run(skin_roi, sil, box, centers, gate, visible, kp)
+                found = self._run(skin_roi, sil, box, centers, gate, visible, kp, shape)
         xy, conf = np.empty((K, 2)), np.empty(K)
         # with label_by_shape and the blobs apart (each blob's pixels its own region): their shapes
         # are kept for the frames they touch
@@ -207,12 +212,11 @@ class BlobTracker:
         offset = np.array(self._offset, np.float64)
         return [c + offset if has else None for c, has in zip(self._out_contours, self._has_contour.tolist())]
 
-    def _run(self, skin_roi, sil, box, centers, gate, visible, kp) -> np.ndarray:
+    def _run(self, skin_roi, sil, box, centers, gate, visible, kp, shape) -> np.ndarray:
         label_and_refine(skin_roi, sil, box[0], box[1], box[2], box[3], np.ascontiguousarray(centers, np.float64),
                          np.ascontiguousarray(gate, np.float64), self._size, visible,
                          kp, self._sums, self._out_xy,
-                         self._out_cov, self._out_area, self._out_contours, self._has_contour,
-                         self._shape_arg)
+                         self._out_cov, self._out_area, self._out_contours, self._has_contour, shape)
         return self._sums[:, 0] >= self.params.min_area_px
 
     # ------------------------------------------------------------------ internals

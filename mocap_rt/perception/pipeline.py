@@ -201,7 +201,8 @@ class CameraPerceiver:
                 corrected = offset_rows is not None and bool(offset_rows[idx].any())
                 res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, prediction.xy[idx],
                                    prediction.visible[idx], prediction.radius_px[idx],
-                                   sil_roi=None if corrected else sil)
+                                   sil_roi=None if corrected else sil,
+                                   pred_shape=None if prediction.shape_px is None else prediction.shape_px[idx])
             else:
                 res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, sil_roi=sil)
             xy[idx], cov[idx], area[idx], conf[idx] = res.xy, res.cov, res.area, res.confidence

@@ -62,6 +62,7 @@ def test_predict_gives_every_camera_the_projected_cues(walk):
     tracker = BodyTracker(rig)
     run(tracker, rig, walk[:20], noise_px=0.0)
     pred = tracker.predict(20)
+    assert tracker.identity.frames >= tracker.config.identity.acquire_frames
     assert list(pred) == list(rig.names)
     truth = walk[20][list(CUE_JOINT_INDEX)]
     for cam in rig.cameras:
@@ -75,9 +76,23 @@ def test_predict_gives_every_camera_the_projected_cues(walk):
         # shoes (the leg's split is the subject's convention) nor the torso
         assert np.isnan(p.offset_px[3:]).all()
         assert np.isfinite(p.offset_px[:3]).any(axis=1).sum() >= 2 and np.nanmax(np.abs(p.offset_px)) < 10.0
+        assert p.shape_px is None                # a foot of the walk swings
+    # the visible shoes' shapes, once the facing is acquired and while the feet move slower
+    # than ``shoe_shapes_max_speed_mps``: positive definite, a shoe's length (0.22 m, ~30 px
+    # here) at most
+    assert np.linalg.norm(tracker.filter.vel[[3, 4]], axis=1).max() > tracker.config.shoe_shapes_max_speed_mps
+    anyspeed = BodyTracker(rig, replace(tracker.config, shoe_shapes_max_speed_mps=np.inf))
+    run(anyspeed, rig, walk[:20], noise_px=0.0)
+    for p in anyspeed.predict(20).values():
+        shoes = p.shape_px[3:5][np.isfinite(p.shape_px[3:5, 0, 0])]
+        assert np.isnan(p.shape_px[[0, 1, 2, 5]]).all() and len(shoes) >= 1
+        assert (np.linalg.eigvalsh(shoes) > 0).all() and np.sqrt(np.linalg.eigvalsh(shoes).max()) < 20.0
+    early = BodyTracker(rig, anyspeed.config)
+    run(early, rig, walk[:3], noise_px=0.0)
+    assert all(p.shape_px is None and p.offset_px is not None for p in early.predict(3).values())
     off = BodyTracker(rig, replace(tracker.config, visible_offsets=False))
     run(off, rig, walk[:3], noise_px=0.0)
-    assert all(p.offset_px is None for p in off.predict(3).values())
+    assert all(p.offset_px is None and p.shape_px is None for p in off.predict(3).values())
 
 
 def test_missing_cameras_and_the_pair_mode(walk):

@@ -36,8 +36,9 @@ cues = st.builds(lambda rig, cam, f, xy, cov, area, conf, bbox, tim, sil, a, b, 
     rig, CameraCues(cam, f, xy, cov, area, conf, bbox, tim, sil), a, b, p),
     names, names, u63, arr((6, 2)), arr((6, 2, 2)), arr((6,)), arr((6,)),
     st.tuples(*[st.integers(-10**6, 10**6)] * 4), small_map, silhouettes, u63, u63, floats)
-predictions = st.builds(lambda rig, cam, f, xy, vis, rad, off: Prediction(rig, CuePrediction(cam, f, xy, vis, rad, off)),
-                        names, names, u63, arr((6, 2)), bools((6,)), arr((6,)), st.none() | arr((6, 2)))
+predictions = st.builds(lambda rig, cam, f, xy, vis, rad, off, shape: Prediction(
+    rig, CuePrediction(cam, f, xy, vis, rad, off, shape)),
+    names, names, u63, arr((6, 2)), bools((6,)), arr((6,)), st.none() | arr((6, 2)), st.none() | arr((6, 2, 2)))
 poses = st.builds(Pose, names, u63, u63, u63, arr((6, 3)), bools((6,)), arr((20, 3)),
                   st.integers(0, 120).flatmap(lambda n: arr((n,))),
                   st.lists(names, max_size=6).map(tuple), st.lists(names, max_size=6).map(tuple),

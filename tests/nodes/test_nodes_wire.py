@@ -17,7 +17,7 @@ def record(a: np.ndarray, dtype: str) -> dict:
 
 
 def envelope(t: str, body: dict) -> bytes:
-    return msgpack.packb({"v": 5, "t": t, "b": body}, use_bin_type=True)
+    return msgpack.packb({"v": 6, "t": t, "b": body}, use_bin_type=True)
 
 
 RNG = np.random.default_rng(15)
@@ -29,8 +29,8 @@ CONF = np.array([1.0, 0.5, 0.0, 1.0, 0.9, 0.3])
 MASK = RNG.random((5, 11)) > 0.5
 
 
-def test_schema_version_is_5():
-    assert SCHEMA_VERSION == 5
+def test_schema_version_is_6():
+    assert SCHEMA_VERSION == 6
 
 
 LEG = np.array([[101.5, 220.25], [np.nan, np.nan]])
@@ -82,3 +82,11 @@ def test_prediction_encodes_to_the_pinned_bytes_and_back():
     wire = envelope("prediction", {**body, "offset_px": record(off, "<f8")})
     assert Prediction("r", CuePrediction("cam_3", 9, XY, vis, rad, off)).to_msgpack() == wire
     np.testing.assert_array_equal(Prediction.from_msgpack(wire).prediction.offset_px, off)
+    # and the shapes of the visible shoes (schema 6)
+    shape = np.full((6, 2, 2), np.nan)
+    shape[3:5] = [[[30.5, -4.0], [-4.0, 9.25]], [[12.0, 1.5], [1.5, 20.0]]]
+    wire = envelope("prediction", {**body, "offset_px": record(off, "<f8"), "shape_px": record(shape, "<f8")})
+    assert Prediction("r", CuePrediction("cam_3", 9, XY, vis, rad, off, shape)).to_msgpack() == wire
+    back = Prediction.from_msgpack(wire).prediction
+    np.testing.assert_array_equal(back.offset_px, off)
+    np.testing.assert_array_equal(back.shape_px, shape)

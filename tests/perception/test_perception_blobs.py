@@ -332,6 +332,29 @@ def test_shoes_never_seen_apart_are_labelled_by_size():
     np.testing.assert_array_equal(runs[0], runs[1])
 
 
+def test_shoes_never_seen_apart_are_split_by_the_predicted_shapes():
+    """Shoes touching side by side, staggered along their length, from the first frame, with
+    fusion's prediction of each shoe's visible shape (``CuePrediction.shape_px``: a filled
+    ellipse of semi-axes a, b has variances a^2 / 4, b^2 / 4): each cue is its shoe's centroid
+    within a pixel (0.15 px); labelled by size (no shapes) one shoe takes the other's heel (1.7
+    px). A NaN shape is no shape."""
+    shape = np.tile(np.diag([18.0 ** 2 / 4, 6.0 ** 2 / 4]), (2, 1, 1))
+    errors = {}
+    for name, pred_shape in (("shapes", shape), ("none", None), ("nan", np.full((2, 2, 2), np.nan))):
+        tr = BlobTracker(("foot_l", "foot_r"), BlobParams(label_by_shape=True))
+        for x in (90.0, 92.0, 94.0, 96.0):
+            centres = np.array([[x, 70.0], [x + 14.0, 81.0]])
+            a, b = (_ellipse_map((160, 200), c, (18.0, 6.0), 0.0) > 0 for c in centres)
+            out = tr.step((a | b).astype(np.float32), (0, 0), (0, 0, 200, 160), None, centres, np.ones(2, bool),
+                          np.full(2, 18.0), pred_shape=pred_shape)
+        assert cv2.connectedComponents((a | b).astype(np.uint8))[0] == 2     # touching: one region
+        truth = np.array([np.argwhere(m)[:, ::-1].mean(axis=0) for m in (a, b)])
+        errors[name] = np.linalg.norm(out.xy - truth, axis=1).max()
+    assert errors["shapes"] < 0.5
+    assert errors["none"] > 1.0
+    assert errors["nan"] == errors["none"]
+
+
 def _own_map(skin, sites, k):
     """Blob k's pixels of ``skin``: colour pixels not nearer (Mahalanobis) another site."""
     ys, xs = np.mgrid[0:skin.shape[0], 0:skin.shape[1]].astype(float)
