@@ -161,8 +161,9 @@ class BlobTracker:
             image pixels (from fusion, A.4); None = use the tracker's own 2D prediction.
         sil_roi : (h, w) uint8 silhouette of the ROI (> 0 = person) for occlusion completion;
             None = no completion.
-        pred_shape : (K, 2, 2) predicted covariance of each blob, px^2 (NaN: none), for
-            ``label_by_shape``: it replaces the shape when last apart.
+        pred_shape : (K, 2, 2) predicted covariance of each blob, px^2 (not finite: none), for
+            ``label_by_shape``: it replaces the shape when last apart (one that is not positive
+            definite turns the shapes off for the frame, ``label_moments``).
         """
         p = self.params
         K = len(self.roles)
@@ -180,7 +181,7 @@ class BlobTracker:
         centers, gate, found = self._centers, self._gate, self._found
         shape = self._shape_arg
         if pred_shape is not None and p.label_by_shape:
-            shape = np.where(np.isfinite(pred_shape[:, :1, :1]), pred_shape, self._apart_cov)
+            shape = np.where(np.isfinite(pred_shape).all(axis=(1, 2))[:, None, None], pred_shape, self._apart_cov)
         apart, n_found = label_frame(
             skin_roi, sil, *box, self._xy, self._vel, self._coast, self._radius, p.max_coast_frames,
             np.asarray(pred_xy, np.float64) if use_pred else _NAN_K2,

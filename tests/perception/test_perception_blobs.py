@@ -337,10 +337,13 @@ def test_shoes_never_seen_apart_are_split_by_the_predicted_shapes():
     fusion's prediction of each shoe's visible shape (``CuePrediction.shape_px``: a filled
     ellipse of semi-axes a, b has variances a^2 / 4, b^2 / 4): each cue is its shoe's centroid
     within a pixel (0.15 px); labelled by size (no shapes) one shoe takes the other's heel (1.7
-    px). A NaN shape is no shape."""
+    px). A shape that is not finite (NaN, a forged inf) is no shape."""
     shape = np.tile(np.diag([18.0 ** 2 / 4, 6.0 ** 2 / 4]), (2, 1, 1))
     errors = {}
-    for name, pred_shape in (("shapes", shape), ("none", None), ("nan", np.full((2, 2, 2), np.nan))):
+    forged = shape.copy()
+    forged[:, 0, 1] = np.inf
+    for name, pred_shape in (("shapes", shape), ("none", None), ("nan", np.full((2, 2, 2), np.nan)),
+                             ("forged", forged)):
         tr = BlobTracker(("foot_l", "foot_r"), BlobParams(label_by_shape=True))
         for x in (90.0, 92.0, 94.0, 96.0):
             centres = np.array([[x, 70.0], [x + 14.0, 81.0]])
@@ -352,7 +355,7 @@ def test_shoes_never_seen_apart_are_split_by_the_predicted_shapes():
         errors[name] = np.linalg.norm(out.xy - truth, axis=1).max()
     assert errors["shapes"] < 0.5
     assert errors["none"] > 1.0
-    assert errors["nan"] == errors["none"]
+    assert errors["nan"] == errors["none"] == errors["forged"]
 
 
 def _own_map(skin, sites, k):
