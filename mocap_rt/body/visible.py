@@ -11,7 +11,7 @@ studio draws), a ray seeing the capsule it meets first, and returns the offset o
 of what is seen of the part from the projection of its cue point, and the covariance of what
 is seen. Fusion sends the offsets of the head and the hands with its prediction (A.4); a
 camera reports the centre it measured less the offset. The shoes' covariances, sent when
-``FusionConfig.shoe_shapes_max_speed_mps`` allows (off by default), split shoes that touch
+``FusionConfig.shoe_shapes_max_speed_mps`` allows (both feet standing), split shoes that touch
 (docs/perception.md, Blobs, step 9).
 """
 

@@ -48,6 +48,13 @@ of a touch exchanged, standing apart side by side, are put right within a few fr
 the silhouettes and limits gain 2-5 units a frame against the debt of the right past. Only a
 credit, never a debit: the exchanged labels' impossibility while the labels are right is no
 evidence of anything and must not pile up a debt that a later exchange has to repay.
+
+Feet that stand closer together than the hips (``feet_together``) cannot be told apart by
+the fit: the two labellings put the legs within the model's own error of each other, and what
+separates their costs is that error (a standing Bandai subject's exchanged feet fit the
+silhouettes 1-2.5 cm^2 a frame better, docs/body.md). There the feet alternative is scored as
+the current labelling, so that no evidence is summed from it; the crossed legs' credit still
+counts.
 """
 
 from __future__ import annotations
@@ -90,6 +97,7 @@ class IdentityConfig:
     frame_margin_frac: float = 0.0  # ... plus this fraction of the current cost (a poor fit decides nothing)
     acquire_frames: int = 15        # the first frames of a track ...
     acquire_factor: float = 0.5     # ... switch on this fraction of the evidence
+    feet_together_hips: float = 1.0   # feet closer than this many hip widths: their exchange is not scored; 0 = off
     crossed_legs_weight: float = 1.0  # per cm^2 of legs passing through each other (crossed_legs_cm2); 0 = off
     legs_on_shoes_weight: float = 1.0  # per cm^2 of legs meeting the shoes off the ankles (body.foot_axis), while
                                        # acquiring, for the facing only (module doc); 0 = off
@@ -214,6 +222,15 @@ def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndar
             elif t > 1.0:
                 s, t = float(np.clip((b - c) / a, 0.0, 1.0)), 1.0
     return float(np.linalg.norm(p1 + s * d1 - (p2 + t * d2)))
+
+
+def feet_together(hips: np.ndarray | None, cues: np.ndarray, factor: float) -> bool:
+    """The feet cues (of ``cues`` (6, 3)) lie closer together than ``factor`` times the
+    distance between the ``hips`` (2, 3) (a recent pose's; None or NaN: False)."""
+    if hips is None or factor <= 0 or not (np.isfinite(hips).all() and np.isfinite(cues[list(FEET)]).all()):
+        return False
+    fl, fr = FEET
+    return bool(np.linalg.norm(cues[fl] - cues[fr]) < factor * np.linalg.norm(hips[0] - hips[1]))
 
 
 def crossed_legs_cm2(hips: np.ndarray | None, cues: np.ndarray, clearance_m: float = LEG_CLEARANCE_M) -> float:

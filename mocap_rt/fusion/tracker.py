@@ -54,7 +54,7 @@ from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.filter import CueFilter
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityState, crossed_legs_cm2, decide,
-                                      fill_missing, score_hypotheses, swap_pairs)
+                                      feet_together, fill_missing, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair,
                                    head_on_trunk, predict_views, reject_duplicates, triangulate_cues)
@@ -388,6 +388,8 @@ class BodyTracker:
                                  feet if acquiring else None, measured_elbows=not acquiring)
         if targets is None or targets.n_views == 0:
             costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
+        if feet_together(hips, cues, cfg.feet_together_hips):
+            costs[1 + _FEET_ALT] = costs[0]      # the fit cannot tell them apart (identity module doc)
         # legs that pass through each other: a credit to the feet alternative (identity module doc)
         costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(hips, cues)
         k = decide(self.identity, costs, cfg)
@@ -421,10 +423,10 @@ class BodyTracker:
         xy, vis, rad = predict_views(self._proj, X, CUE_RADII_M)
         off = shape = [None] * len(self._names)
         if self.config.visible_offsets and self._last_pose is not None:
-            # the shoes' shapes (docs/perception.md, Blobs, step 9; off by default): once the
-            # facing is acquired (while it is open the shoe blobs' legs decide it, and a split
-            # shaped by a body facing the wrong way kept it so), and while both feet stand (a
-            # moving foot's prediction lags, and a shape centred on it takes the other shoe)
+            # the shoes' shapes (docs/perception.md, Blobs, step 9): once the facing is acquired
+            # (while it is open the shoe blobs' legs decide it, and a split shaped by a body
+            # facing the wrong way kept it so), and while both feet stand (a moving foot's
+            # prediction lags, and a shape centred on it takes the other shoe)
             speed = np.linalg.norm(self.filter.vel[[C_FOOT_L, C_FOOT_R]], axis=1).max()
             shapes = (self.identity.frames >= self.config.identity.acquire_frames
                       and speed < self.config.shoe_shapes_max_speed_mps)

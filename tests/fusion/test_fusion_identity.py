@@ -7,7 +7,8 @@ from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.evaluate import heading_deg, mirrored_frames, truth_camera_cues, wrap_deg
 from mocap_rt.fusion.filter import CueFilter
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
-                                      crossed_legs_cm2, decide, segment_distance, swap_pairs, swap_swivel)
+                                      crossed_legs_cm2, decide, feet_together, segment_distance, swap_pairs,
+                                      swap_swivel)
 from mocap_rt.fusion.tracker import BodyTracker
 from mocap_rt.io.recording import Recording
 from mocap_rt.names import CUE_NAMES, J
@@ -334,6 +335,22 @@ def test_true_legs_never_pass_through_each_other_exchanged_ones_do(turn_in_place
     assert np.all(right == 0.0)
     assert np.mean(exchanged[apart > 0.15] > 5.0) > 0.8
     assert np.all(exchanged[apart < 0.05] == 0.0)
+
+
+def test_feet_together_is_closer_than_the_hips():
+    """Hand-computed: hips 0.16 m apart; feet 0.14 m apart are together at factor 1 and not at
+    0.8 (0.128 m); 0.20 m apart are not; no hips, a missing foot or factor 0: never."""
+    hips = np.array([[-0.08, 0.0, 0.9], [0.08, 0.0, 0.9]])
+    cues = np.zeros((6, 3))
+    cues[FL], cues[FR] = [-0.07, 0.05, 0.1], [0.07, 0.05, 0.1]     # 0.14 m apart, side by side
+    assert feet_together(hips, cues, 1.0) and not feet_together(hips, cues, 0.8)
+    wide = cues.copy()
+    wide[FR, 0] = 0.13                                             # 0.20 m apart
+    assert not feet_together(hips, wide, 1.0)
+    missing = cues.copy()
+    missing[FR] = np.nan
+    assert not feet_together(None, cues, 1.0) and not feet_together(hips, missing, 1.0)
+    assert not feet_together(hips, cues, 0.0)
 
 
 @pytest.mark.slow
