@@ -151,8 +151,10 @@ def fill_missing(cues: np.ndarray, axes: np.ndarray, rest_cues: np.ndarray) -> n
 
 def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray, prev_axes: np.ndarray | None,
                      targets: SilhouetteTargets | None, config: IdentityConfig,
-                     feet: np.ndarray | None = None, measured_elbows: bool = True) -> np.ndarray:
-    """Costs (4,): the current labelling, then each of ALTERNATIVES, scored alike.
+                     feet: np.ndarray | None = None, measured_elbows: bool = True,
+                     skip: frozenset[int] = frozenset()) -> np.ndarray:
+    """Costs (4,): the current labelling, then each of ALTERNATIVES, scored alike; NaN for the
+    alternatives in ``skip`` (indices into ALTERNATIVES), which are not fitted.
 
     cues (6, 3) metres (head and torso finite; missing hands/feet are filled at rest).
     Each hypothesis searches its pan within +-``pan_search_deg`` of the previous body axes
@@ -173,6 +175,8 @@ def score_hypotheses(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray
     right = right / max(float(np.linalg.norm(right)), 1e-9)
 
     def cost(h: int, legs: bool) -> float:
+        if h - 1 in skip:
+            return np.nan
         X = cues if h == 0 else swap_pairs(cues, h - 1)
         F = None if not legs else feet if h == 0 else swap_pairs(feet, h - 1)
         r = -right if (h == 1 + _MIRROR and prev_axes is not None) else right

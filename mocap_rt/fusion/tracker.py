@@ -73,6 +73,7 @@ _CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
 _NO_CUES = np.zeros(N_CUES, dtype=bool)
 _HIPS = [J["hip_l"], J["hip_r"]]
 _FEET_ALT = ALTERNATIVES.index("feet")
+_MIRROR_ALT = ALTERNATIVES.index("mirror")
 
 
 class BodyTracker:
@@ -384,12 +385,15 @@ class BodyTracker:
         alternative switched to (index into ALTERNATIVES) or -1."""
         cfg = self.config.identity
         acquiring = self.identity.frames < cfg.acquire_frames     # the legs score the facing only then
+        no_views = targets is None or targets.n_views == 0     # the limits alone cannot see a mirror
+        together = feet_together(hips, cues, cfg.feet_together_hips)   # the fit cannot tell the feet apart
+        skip = frozenset(k for k, off in ((_MIRROR_ALT, no_views), (_FEET_ALT, together)) if off)
         costs = score_hypotheses(self._fitter, cues, self._rest_cues, prev_axes, targets, cfg,
-                                 feet if acquiring else None, measured_elbows=not acquiring)
-        if targets is None or targets.n_views == 0:
-            costs[1 + ALTERNATIVES.index("mirror")] = np.inf   # the limits alone cannot see a mirror
-        if feet_together(hips, cues, cfg.feet_together_hips):
-            costs[1 + _FEET_ALT] = costs[0]      # the fit cannot tell them apart (identity module doc)
+                                 feet if acquiring else None, measured_elbows=not acquiring, skip=skip)
+        if no_views:
+            costs[1 + _MIRROR_ALT] = np.inf
+        if together:
+            costs[1 + _FEET_ALT] = costs[0]      # scored as the current labelling (identity module doc)
         # legs that pass through each other: a credit to the feet alternative (identity module doc)
         costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(hips, cues)
         k = decide(self.identity, costs, cfg)

@@ -337,6 +337,30 @@ def test_true_legs_never_pass_through_each_other_exchanged_ones_do(turn_in_place
     assert np.all(exchanged[apart < 0.05] == 0.0)
 
 
+def test_skipped_alternatives_are_not_fitted_and_the_rest_are_unchanged():
+    """``score_hypotheses(skip=...)``: a skipped alternative's cost is NaN (the caller decides
+    it: the feet together, or no views for the mirror), every other cost is the one scored
+    without the skip, and the fitter is called once less per skipped alternative."""
+    from mocap_rt.fusion.identity import score_hypotheses
+    from mocap_rt.geometry.rig import ring_rig
+
+    tracker = BodyTracker(ring_rig())
+    cues = tracker._rest_cues + [0.3, -0.2, 0.0]
+    cues[FL] += [0.05, 0.1, 0.0]                          # a step: the feet labellings differ
+    calls = []
+    fit = tracker._fitter.fit
+    tracker._fitter.fit = lambda *a, **k: calls.append(1) or fit(*a, **k)
+    cfg = tracker.config.identity
+    full = score_hypotheses(tracker._fitter, cues, tracker._rest_cues, None, None, cfg)
+    n_full = len(calls)
+    feet, mirror = ALTERNATIVES.index("feet"), ALTERNATIVES.index("mirror")
+    part = score_hypotheses(tracker._fitter, cues, tracker._rest_cues, None, None, cfg, skip=frozenset({feet, mirror}))
+    assert len(calls) - n_full == n_full - 2
+    assert np.isnan(part[[1 + feet, 1 + mirror]]).all() and np.isfinite(full).all()
+    keep = [0, 1 + ALTERNATIVES.index("hands")]
+    np.testing.assert_array_equal(part[keep], full[keep])
+
+
 def test_feet_together_is_closer_than_the_hips():
     """Hand-computed: hips 0.16 m apart; feet 0.14 m apart are together at factor 1 and not at
     0.8 (0.128 m); 0.20 m apart are not; no hips, a missing foot or factor 0: never."""
