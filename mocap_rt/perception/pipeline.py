@@ -212,15 +212,18 @@ class CameraPerceiver:
             xy[:C_TORSO] -= visible_centre_offsets(offsets[:C_TORSO], area[:C_TORSO])
         t3 = time.perf_counter()
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
+        pred_r = float("nan") if prediction is None else float(prediction.radius_px[C_HEAD])
         ridge = txy + (bx, by)
         if self.config.head_check:
-            seat = check_head(self.scene, xy[C_HEAD], area[C_HEAD], conf[C_HEAD], ridge, tcov, skin, (bx, by))
+            seat = check_head(self.scene, xy[C_HEAD], area[C_HEAD], conf[C_HEAD], ridge, tcov, skin, (bx, by),
+                              pred_r)
             if seat is not None:
                 xy[C_HEAD], area[C_HEAD], conf[C_HEAD] = seat[0], seat[1], 0.5
                 self.skin_tracker.reseat(SKIN_CUES.index("head"), seat[0], 2.0 * np.sqrt(seat[1] / np.pi))
         if np.isfinite(txy).all():
             xy[C_TORSO] = ridge
-            head_torso = (torso_from_head(xy[C_HEAD], self.scene.head_radius(), ridge, self.config.torso_head_radii)
+            head_r = self.scene.head_radius(pred_r)      # scaled to this frame's depth by the prediction
+            head_torso = (torso_from_head(xy[C_HEAD], head_r, ridge, self.config.torso_head_radii)
                           if self.config.torso_head_radii > 0 else None)
             if head_torso is not None:
                 xy[C_TORSO] = head_torso

@@ -12,7 +12,12 @@ gives the scale at the person's depth in every view): 3.96 r (inter-quartile 3.9
 the CMU skeleton, 3.46 r (3.38-3.52) on the Bandai-Namco one, measured over 6 cameras on
 cmu_02_01 and the Bandai kick. So ``torso = H + k r (R - H) / |R - H|`` with
 ``k = TORSO_HEAD_RADII`` (3.7, between the two subjects' proportions) and ``r`` the median
-of the head blob's recent equivalent radii. The ridge centroid itself slides along the
+of the head blob's recent equivalent radii. With fusion's prediction each of those radii is
+first scaled to this frame's depth, by the ratio of this frame's predicted head radius to the
+one predicted when it was measured (``SceneState.head_radius``): a person walking towards a
+camera grows 2-3 % a frame, and the plain median of ``HISTORY_FRAMES`` lagged by 10-50 % (the
+Bandai walk, one view: 109 px against 95 predicted, the torso 84-120 px off). The ridge
+centroid itself slides along the
 trunk with the arms and legs (arms overhead lengthen the band: 9-19 px median error at
 640x480). Without a head, the ridge centroid is the cue.
 
@@ -61,12 +66,20 @@ class SceneState:
     has failed the head test."""
 
     radii: deque = field(default_factory=lambda: deque(maxlen=HISTORY_FRAMES))
+    pred_radii: deque = field(default_factory=lambda: deque(maxlen=HISTORY_FRAMES))  # predicted then (NaN: none)
     suspect_frames: int = 0
     confirmed: bool = False      # the head label has passed the head test once
 
-    def head_radius(self) -> float:
-        """Median recent head radius, px (NaN before any); ``statistics.median``, not
-        ``np.median`` (its per-call overhead was ~20 us, once a frame)."""
+    def head_radius(self, pred_radius: float = float("nan")) -> float:
+        """Median recent head radius, px (NaN before any). With this frame's predicted head
+        radius ``pred_radius`` (px), the radii measured with a prediction are scaled to this
+        frame's depth first (each times ``pred_radius`` over the radius predicted then; module
+        doc). ``statistics.median``, not ``np.median`` (its per-call overhead was ~20 us, once a
+        frame)."""
+        if math.isfinite(pred_radius) and pred_radius > 0:
+            scaled = [r * pred_radius / p for r, p in zip(self.radii, self.pred_radii) if math.isfinite(p) and p > 0]
+            if scaled:
+                return float(statistics.median(scaled))
         return float(statistics.median(self.radii)) if self.radii else float("nan")
 
 
@@ -119,9 +132,10 @@ def torso_from_head(head_xy: np.ndarray, head_r: float, ridge_xy: np.ndarray,
 
 def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_conf: float,
                ridge_xy: np.ndarray, ridge_cov: np.ndarray, skin: np.ndarray,
-               origin: tuple[int, int]) -> tuple[np.ndarray, float] | None:
+               origin: tuple[int, int], pred_radius: float = float("nan")) -> tuple[np.ndarray, float] | None:
     """Update ``state`` with this frame's head; return a re-seated head ((2,) px, area px^2)
-    or None.
+    or None. ``pred_radius``: the head's radius (px) fusion predicted for this frame, kept with
+    the measured one (``SceneState.head_radius``; NaN: no prediction).
 
     head_xy (2,) px (NaN = not found), head_area px^2 and head_conf of the head blob;
     ridge_xy (2,) px, ridge_cov (2, 2) px^2 the ridge band (NaN = none); skin (h, w) colour map
@@ -136,6 +150,7 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
         state.confirmed = True
         if head_conf >= 0.9:                 # a full, visible blob: its size scales the torso
             state.radii.append(math.sqrt(head_area / math.pi))
+            state.pred_radii.append(pred_radius)
         return None
     state.suspect_frames += 1
     # a label that never passed has no evidence to keep: re-seated at once (a cold start took

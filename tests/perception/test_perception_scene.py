@@ -112,3 +112,38 @@ def test_pipeline_brings_the_head_back_from_a_hand():
     assert np.hypot(*(xs[0] - hand)) < 3.0                     # the 2D track follows the label ...
     for xy in xs[-2:]:                                         # ... until the scene check re-seats it
         assert np.hypot(*(xy - np.array(sc.centres["head"]))) < 1.0
+
+
+def _walk_towards_the_camera(state: SceneState, radii, preds) -> None:
+    """The head (a disc of each radius, in its own skin map) passes the head test every frame;
+    ``preds``: fusion's predicted radius of each frame (NaN: no prediction)."""
+    for r, p in zip(radii, preds):
+        skin = np.zeros((400, 200), np.float32)
+        cv2.circle(skin, (100, 60), int(round(r)), 1.0, -1)
+        ridge = np.array([100.0, 60.0 + TORSO_HEAD_RADII * r])
+        assert check_head(state, np.array([100.0, 60.0]), np.pi * r * r, 1.0, ridge, np.diag([30.0, 400.0]),
+                          skin, (0, 0), p) is None
+
+
+def test_head_radius_follows_the_depth_the_prediction_gives():
+    """A person walking towards the camera: the head's image radius grows 3 % a frame. The plain
+    median of the recent radii lags it; scaled by the predicted radii (which grow alike, here
+    10 % smaller than what the camera measures, as the 0.10 m cue radius does) it does not."""
+    radii = 10.0 * 1.03 ** np.arange(15)
+    preds = 0.9 * radii
+    state = SceneState()
+    _walk_towards_the_camera(state, radii, preds)
+    now = 0.9 * 10.0 * 1.03 ** 15                      # this frame's prediction
+    assert abs(state.head_radius(now) - now / 0.9) < 1e-9
+    assert state.head_radius() < 0.85 * now / 0.9      # the median of the last 15: 7 frames behind
+    torso = torso_from_head(np.array([100.0, 60.0]), state.head_radius(now), np.array([100.0, 400.0]))
+    np.testing.assert_allclose(torso, [100.0, 60.0 + TORSO_HEAD_RADII * now / 0.9])
+
+
+def test_head_radius_without_a_usable_prediction_is_the_plain_median():
+    state = SceneState()
+    _walk_towards_the_camera(state, [10.0, 11.0, 12.0], [np.nan, np.inf, 0.0])   # none usable (a forged inf)
+    assert state.head_radius(20.0) == state.head_radius() == 11.0
+    assert state.head_radius(np.nan) == state.head_radius(np.inf) == 11.0
+    _walk_towards_the_camera(state, [12.0], [6.0])
+    assert state.head_radius(7.0) == 14.0             # only the radius measured with a prediction is scaled
