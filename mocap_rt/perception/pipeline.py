@@ -37,7 +37,7 @@ from mocap_rt.perception.roi import ChangeMask, roi_candidates
 from mocap_rt.perception.leg_attach import MIN_BLOB_AREA_PX, leg_attachment
 from mocap_rt.perception.scene import TORSO_HEAD_RADII, SceneState, check_head, torso_from_head
 from mocap_rt.perception.silhouette import half_cells, silhouette_colour
-from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, torso_point
+from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, HOLE_HEAD_AREAS, torso_point
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +77,8 @@ class PerceptionConfig:
     torso_head_shift_frac: float = 0.0    # torso point moved this fraction of the torso->head distance away
                                           # from the head; the ridge's bias depends on the clip (docs), so off
     torso_step_px: int = 0                # distance-transform subsampling; 0 = 2 if width > 400 else 1
+    torso_hole_head_areas: float = HOLE_HEAD_AREAS  # holes this many head areas and larger are loops of the
+                                                    # body, not trunk, for the torso ridge (torso.py); 0 = off
     background_update_rate: float = 0.0   # > 0: slow background update (per frame blend weight)
     close_px: int = 0                     # > 0: morphological closing (square, this size) of the change mask
     silhouette_bytes: int = SILHOUETTE_MAX_BYTES  # compact silhouette sent to fusion (packed bits); 0 = none
@@ -211,8 +213,10 @@ class CameraPerceiver:
         if offsets is not None:
             xy[:C_TORSO] -= visible_centre_offsets(offsets[:C_TORSO], area[:C_TORSO])
         t3 = time.perf_counter()
-        txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step)
         pred_r = float("nan") if prediction is None else float(prediction.radius_px[C_HEAD])
+        head_r = self.scene.head_radius(pred_r)          # scaled to this frame's depth by the prediction
+        loops = (member, change, self.config.torso_hole_head_areas * np.pi * head_r ** 2) if head_r > 0 else None
+        txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step, loops)
         ridge = txy + (bx, by)
         if self.config.head_check:
             seat = check_head(self.scene, xy[C_HEAD], area[C_HEAD], conf[C_HEAD], ridge, tcov, skin, (bx, by),
@@ -222,7 +226,7 @@ class CameraPerceiver:
                 self.skin_tracker.reseat(SKIN_CUES.index("head"), seat[0], 2.0 * np.sqrt(seat[1] / np.pi))
         if np.isfinite(txy).all():
             xy[C_TORSO] = ridge
-            head_r = self.scene.head_radius(pred_r)      # scaled to this frame's depth by the prediction
+            head_r = self.scene.head_radius(pred_r)
             head_torso = (torso_from_head(xy[C_HEAD], head_r, ridge, self.config.torso_head_radii)
                           if self.config.torso_head_radii > 0 else None)
             if head_torso is not None:

@@ -118,6 +118,45 @@ def test_torso_ridge_centre_of_a_trunk_shape():
     assert np.isnan(torso_point(np.zeros((5, 5), np.uint8))[0]).all()
 
 
+def _trunk_with_a_loop_of_arm(hole_px: int = 0):
+    """A trunk (centre (100, 130)), head and legs, and an arm raised in a loop beside the head (a
+    hand behind it) whose inside is background: the filled silhouette, its filled component and
+    the change codes (the loop's inside and an optional small hole in the chest unchanged)."""
+    member = np.zeros((300, 240), np.uint8)
+    cv2.rectangle(member, (70, 60), (130, 200), 255, -1)      # trunk
+    cv2.circle(member, (100, 35), 20, 255, -1)                # head
+    cv2.rectangle(member, (75, 200), (95, 290), 255, -1)      # legs
+    cv2.rectangle(member, (105, 200), (125, 290), 255, -1)
+    cv2.rectangle(member, (125, 5), (215, 85), 255, -1)       # the arm's loop, filled ...
+    change = member.copy()
+    cv2.rectangle(change, (137, 17), (203, 73), 0, -1)        # ... around background (67 x 57 px)
+    if hole_px:
+        change[120:120 + hole_px, 100:100 + hole_px] = 0      # a person pixel block the change test missed
+    return member.copy(), member, change
+
+
+def test_torso_ridge_leaves_out_the_background_in_a_loop_of_arm():
+    """Filled, the loop is the silhouette's thickest part and takes the ridge; taken out as a
+    loop (holes of at least the given area), the ridge is the trunk's again (the test above)."""
+    sil, member, change = _trunk_with_a_loop_of_arm()
+    xy, _, _ = torso_point(sil, step=2)
+    assert xy[0] > 150                                        # on the filled loop
+    for step in (1, 2):
+        xy, _, thick = torso_point(sil, step=step, loops=(member, change, 1000.0))
+        assert abs(xy[0] - 100) < 1.0 + step and abs(xy[1] - 130) < 4.0 + step
+        assert thick == pytest.approx(30.5, abs=1.5 * step)
+    # a hole under the least area stays filled: the point is that of the silhouette with only
+    # the loop's inside cleared
+    sil, member, change = _trunk_with_a_loop_of_arm(hole_px=20)
+    opened = sil.copy()
+    opened[17:74, 137:204] = 0
+    for step in (1, 2):
+        got = torso_point(sil, step=step, loops=(member, change, 1000.0))
+        want = torso_point(opened, step=step)
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
+
+
 def _reference_torso_point(sil, ridge_frac, step):
     """The torso point with OpenCV's minMaxLoc and moments."""
     sil = np.ascontiguousarray(sil[::step, ::step])
