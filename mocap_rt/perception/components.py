@@ -214,3 +214,40 @@ def largest_component_box(mask: np.ndarray, min_area_px: int = 0) -> tuple[np.nd
     and (0, 0, 0, 0) when its filled area is below ``min_area_px`` pixels."""
     out, x, y, w, h = largest_component_kernel(mask, min_area_px)
     return out, (int(x), int(y), int(w), int(h))
+
+
+@numba.njit(cache=True, nogil=True)
+def clear_large_holes(sil, member, change, step, min_area):  # pragma: no cover - numba
+    """``sil`` (h, w) uint8 (the box's silhouette sampled every ``step``-th pixel) with the
+    4-connected groups of at least ``min_area`` of its hole pixels set to 0: the pixels of the
+    filled component ``member`` (> 0) that the change test did not mark (``change`` codes 0),
+    both full-size (h * step, w * step at most) and sampled alike. A new array when a group is
+    cleared, else ``sil`` itself. The groups from the rows' runs (``_row_runs``, ``_join_rows``),
+    as ``cv2.connectedComponentsWithStats`` with connectivity 4 (the tests' oracle)."""
+    h, w = sil.shape
+    holes = np.zeros((h, w), np.uint8)
+    for y in range(h):
+        m_row = member[y * step]
+        c_row = change[y * step]
+        h_row = holes[y]
+        for x in range(w):
+            h_row[x] = (m_row[x * step] != 0) & (c_row[x * step] == 0)
+    row_first, ra, rb = _row_runs(holes)
+    n = ra.size
+    if n == 0:
+        return sil
+    parent = np.arange(n)
+    _join_rows(row_first, ra, rb, parent, 0)
+    area = np.zeros(n, np.int64)
+    for k in range(n):
+        area[_find(parent, k)] += rb[k] - ra[k]
+    out = sil
+    copied = False
+    for y in range(h):
+        for k in range(row_first[y], row_first[y + 1]):
+            if area[_find(parent, k)] >= min_area:
+                if not copied:
+                    out = sil.copy()
+                    copied = True
+                out[y, ra[k]:rb[k]] = 0
+    return out

@@ -21,7 +21,8 @@ loop of arm around background, and filled, that loop is the thickest part of the
 the ridge moved onto the shoulder and the head's torso cue (``scene.torso_from_head``) 46 px
 off in a view (the hand behind the head, 640x480). So the background seen through a hole of
 at least ``HOLE_HEAD_AREAS`` of the head's image area is taken out again before the distance
-transform (``open_loops``); the change test's missed pixels make holes of under 0.05 of it.
+transform (``components.clear_large_holes``); the change test's missed pixels make holes of
+under 0.05 of it.
 """
 
 from __future__ import annotations
@@ -30,28 +31,13 @@ import cv2
 import numba
 import numpy as np
 
+from mocap_rt.perception.components import clear_large_holes
+
 # Fraction of the distance-transform maximum that defines the trunk's ridge band.
 DEFAULT_RIDGE_FRAC = 0.85
 # A hole of the filled silhouette of at least this fraction of the head's image area is
 # background seen through a loop of the body (module doc); 0.08-0.3 measured alike
 HOLE_HEAD_AREAS = 0.15
-
-
-def open_loops(silhouette: np.ndarray, member: np.ndarray, change: np.ndarray, min_area_px: float) -> np.ndarray:
-    """``silhouette`` (h, w) uint8 with its filled holes taken out where they form a 4-connected
-    group of at least ``min_area_px`` pixels: the pixels of the filled component ``member``
-    (h, w) (> 0) that the change test did not mark (``change`` (h, w) codes 0); the same
-    array when there is none."""
-    unchanged = (member != 0) & (change == 0)
-    if min_area_px <= 0 or not unchanged.any():
-        return silhouette
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(unchanged.view(np.uint8), connectivity=4)
-    big = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area_px) + 1
-    if big.size == 0:
-        return silhouette
-    out = silhouette.copy()
-    out[np.isin(labels, big)] = 0
-    return out
 
 
 def torso_point(silhouette: np.ndarray, ridge_frac: float = DEFAULT_RIDGE_FRAC, step: int = 1,
@@ -62,7 +48,7 @@ def torso_point(silhouette: np.ndarray, ridge_frac: float = DEFAULT_RIDGE_FRAC, 
         transform's cost; the ridge centroid still averages many pixels).
     loops : (member, change, min_area_px): the filled component and the change codes (h, w)
         of the box and the least hole area (px) to take out as a loop of the body
-        (``open_loops``, module doc); None: the silhouette as it is.
+        (``components.clear_large_holes``, module doc); None: the silhouette as it is.
     Returns (xy (2,) float64 pixels of the array, cov (2, 2) px^2 of the ridge band,
     thickness_px = the distance-transform maximum, i.e. the trunk's half width). xy is NaN
     when the silhouette is empty.
@@ -70,7 +56,7 @@ def torso_point(silhouette: np.ndarray, ridge_frac: float = DEFAULT_RIDGE_FRAC, 
     sil = np.ascontiguousarray(silhouette[::step, ::step]) if step > 1 else silhouette
     if loops is not None:
         member, change, min_area_px = loops
-        sil = open_loops(sil, member[::step, ::step], change[::step, ::step], min_area_px / (step * step))
+        sil = clear_large_holes(sil, member, change, step, min_area_px / (step * step))
     if sil.size == 0:
         return np.full(2, np.nan), np.full((2, 2), np.nan), 0.0
     dist = cv2.distanceTransform(sil, cv2.DIST_L2, cv2.DIST_MASK_5)     # (h, w) float32 px / step

@@ -8,7 +8,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from mocap_rt.perception.components import largest_component_box
+from mocap_rt.perception.components import clear_large_holes, largest_component_box
 
 
 def _reference(mask, min_area):
@@ -98,3 +98,23 @@ def test_same_as_opencv_contours_on_person_like_masks():
         got, box = largest_component_box(m)
         assert box == (x, y, w, h)
         np.testing.assert_array_equal(got, want[y:y + h, x:x + w])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([1, 2, 3]), st.integers(1, 40))
+def test_clear_large_holes_matches_opencv_components(seed, step, min_area):
+    """The holes (member set, change 0) sampled every ``step``-th pixel, their 4-connected groups
+    of at least ``min_area`` pixels cleared from the sampled silhouette: as OpenCV labels them."""
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(1, 40, size=2)
+    member = (rng.random((h, w)) < 0.8).astype(np.uint8) * 255
+    change = np.where(rng.random((h, w)) < 0.6, rng.choice([128, 255], size=(h, w)), 0).astype(np.uint8)
+    sil = np.ascontiguousarray(((member > 0) & (rng.random((h, w)) < 0.9)).astype(np.uint8)[::step, ::step] * 255)
+    holes = ((member[::step, ::step] != 0) & (change[::step, ::step] == 0)).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
+    want = sil.copy()
+    want[np.isin(labels, np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)) & (holes > 0)] = 0
+    before = sil.copy()
+    got = clear_large_holes(sil, member, change, step, float(min_area))
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(sil, before)                # the input is left as it was
