@@ -221,7 +221,7 @@ def clear_large_holes(sil, member, change, step, min_area):  # pragma: no cover 
     """``sil`` (h, w) uint8 (the box's silhouette sampled every ``step``-th pixel) with the
     4-connected groups of at least ``min_area`` of its hole pixels set to 0: the pixels of the
     filled component ``member`` (> 0) that the change test did not mark (``change`` codes 0),
-    both full-size (h * step, w * step at most) and sampled alike. A new array when a group is
+    both the box's full-size arrays, sampled here as ``sil`` was. A new array when a group is
     cleared, else ``sil`` itself. The groups from the rows' runs (``_row_runs``, ``_join_rows``),
     as ``cv2.connectedComponentsWithStats`` with connectivity 4 (the tests' oracle)."""
     h, w = sil.shape

@@ -215,7 +215,8 @@ class CameraPerceiver:
         t3 = time.perf_counter()
         pred_r = float("nan") if prediction is None else float(prediction.radius_px[C_HEAD])
         head_r = self.scene.head_radius(pred_r)          # scaled to this frame's depth by the prediction
-        loops = (member, change, self.config.torso_hole_head_areas * np.pi * head_r ** 2) if head_r > 0 else None
+        hole_px = self.config.torso_hole_head_areas * np.pi * head_r ** 2       # NaN before a head is seen
+        loops = (member, change, hole_px) if hole_px > 0 else None
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step, loops)
         ridge = txy + (bx, by)
         if self.config.head_check:
@@ -226,7 +227,7 @@ class CameraPerceiver:
                 self.skin_tracker.reseat(SKIN_CUES.index("head"), seat[0], 2.0 * np.sqrt(seat[1] / np.pi))
         if np.isfinite(txy).all():
             xy[C_TORSO] = ridge
-            head_r = self.scene.head_radius(pred_r)
+            head_r = self.scene.head_radius(pred_r)      # with this frame's head
             head_torso = (torso_from_head(xy[C_HEAD], head_r, ridge, self.config.torso_head_radii)
                           if self.config.torso_head_radii > 0 else None)
             if head_torso is not None:

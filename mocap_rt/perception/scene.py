@@ -17,9 +17,8 @@ first scaled to this frame's depth, by the ratio of this frame's predicted head 
 one predicted when it was measured (``SceneState.head_radius``): a person walking towards a
 camera grows 2-3 % a frame, and the plain median of ``HISTORY_FRAMES`` lagged by 10-50 % (the
 Bandai walk, one view: 109 px against 95 predicted, the torso 84-120 px off). The ridge
-centroid itself slides along the
-trunk with the arms and legs (arms overhead lengthen the band: 9-19 px median error at
-640x480). Without a head, the ridge centroid is the cue.
+centroid itself slides along the trunk with the arms and legs (arms overhead lengthen the
+band: 9-19 px median error at 640x480). Without a head, the ridge centroid is the cue.
 
 **Head on the trunk.** In the 2D-only loop a hand passing over the face, or hands held
 above the head at a cold start, can carry the head label away, and nothing brought it back.
