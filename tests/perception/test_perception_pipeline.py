@@ -240,4 +240,3 @@ def test_torso_head_shift_moves_the_torso_point_away_from_the_head():
     t, h = CUE_NAMES.index("torso"), CUE_NAMES.index("head")
     np.testing.assert_allclose(shifted.xy[t], plain.xy[t] - 0.1 * (plain.xy[h] - plain.xy[t]), atol=1e-9)
     np.testing.assert_array_equal(shifted.xy[:5], plain.xy[:5])
-
