@@ -217,7 +217,8 @@ class CameraPerceiver:
         head_r = self.scene.head_radius(pred_r)          # scaled to this frame's depth by the prediction
         hole_px = self.config.torso_hole_head_areas * np.pi * head_r ** 2       # NaN before a head is seen
         loops = (member, change, hole_px) if hole_px > 0 else None
-        txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step, loops)
+        head = (xy[C_HEAD, 0] - bx, xy[C_HEAD, 1] - by, head_r)
+        txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step, loops, head)
         ridge = txy + (bx, by)
         if self.config.head_check:
             seat = check_head(self.scene, xy[C_HEAD], area[C_HEAD], conf[C_HEAD], ridge, tcov, skin, (bx, by),

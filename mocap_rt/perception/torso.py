@@ -23,6 +23,14 @@ off in a view (the hand behind the head, 640x480). So the background seen throug
 at least ``HOLE_HEAD_AREAS`` of the head's image area is taken out again before the distance
 transform (``components.clear_large_holes``); the change test's missed pixels make holes of
 under 0.05 of it.
+
+**Head and arms in one blob.** Hands on the head seen from the side show no background between
+arm and head: head, forearms and upper arms make one blob thicker than the trunk, and the
+torso cue landed 80-100 px off beside the shoulder (the hands on the head s1007, camera 4). The
+trunk's middle lies 3.5-4 head radii from the head (``scene.TORSO_HEAD_RADII``); a ridge
+centroid within ``RIDGE_MIN_HEAD_RADII`` of it is the head's blob, and the ridge is measured
+again without the silhouette within that distance of the head (``torso_point``'s ``head``).
+Left out in every frame instead, the bent trunk of a crouch lost its top (docs/perception.md).
 """
 
 from __future__ import annotations
@@ -38,10 +46,13 @@ DEFAULT_RIDGE_FRAC = 0.85
 # A hole of the filled silhouette of at least this fraction of the head's image area is
 # background seen through a loop of the body (module doc); 0.08-0.3 measured alike
 HOLE_HEAD_AREAS = 0.15
+# A ridge centroid nearer the head than this many head radii is not the trunk's middle (module doc)
+RIDGE_MIN_HEAD_RADII = 2.5
 
 
 def torso_point(silhouette: np.ndarray, ridge_frac: float = DEFAULT_RIDGE_FRAC, step: int = 1,
-                loops: tuple[np.ndarray, np.ndarray, float] | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+                loops: tuple[np.ndarray, np.ndarray, float] | None = None,
+                head: tuple[float, float, float] | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """Torso point of ``silhouette`` (h, w) uint8 {0, 255} (one person, in its box).
 
     step : evaluate on every ``step``-th pixel (2 at 640x480 quarters the distance
@@ -49,6 +60,9 @@ def torso_point(silhouette: np.ndarray, ridge_frac: float = DEFAULT_RIDGE_FRAC, 
     loops : (member, change, min_area_px): the filled component and the change codes (h, w)
         of the box and the least hole area (px) to take out as a loop of the body
         (``components.clear_large_holes``, module doc); None: the silhouette as it is.
+    head : (x, y, radius) px of the head blob in the array; a ridge centroid within
+        ``RIDGE_MIN_HEAD_RADII`` radii of it is measured again without the silhouette that
+        near the head (module doc). None: no head.
     Returns (xy (2,) float64 pixels of the array, cov (2, 2) px^2 of the ridge band,
     thickness_px = the distance-transform maximum, i.e. the trunk's half width). xy is NaN
     when the silhouette is empty.
@@ -57,6 +71,20 @@ def torso_point(silhouette: np.ndarray, ridge_frac: float = DEFAULT_RIDGE_FRAC, 
     if loops is not None:
         member, change, min_area_px = loops
         sil = clear_large_holes(sil, member, change, step, min_area_px / (step * step))
+    out = _ridge(sil, ridge_frac, step)
+    if head is not None and all(np.isfinite(head)) and head[2] > 0:
+        near = RIDGE_MIN_HEAD_RADII * head[2]
+        if np.hypot(out[0][0] - head[0], out[0][1] - head[1]) < near:
+            yy, xx = np.ogrid[:sil.shape[0], :sil.shape[1]]
+            away = sil * ((xx * step - head[0]) ** 2 + (yy * step - head[1]) ** 2 >= near * near)
+            again = _ridge(away.astype(np.uint8), ridge_frac, step)
+            if np.isfinite(again[0]).all():
+                out = again
+    return out
+
+
+def _ridge(sil: np.ndarray, ridge_frac: float, step: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """``torso_point``'s measurement of the sampled silhouette ``sil`` (coordinates times ``step``)."""
     if sil.size == 0:
         return np.full(2, np.nan), np.full((2, 2), np.nan), 0.0
     dist = cv2.distanceTransform(sil, cv2.DIST_L2, cv2.DIST_MASK_5)     # (h, w) float32 px / step

@@ -157,6 +157,27 @@ def test_torso_ridge_leaves_out_the_background_in_a_loop_of_arm():
             np.testing.assert_array_equal(a, b)
 
 
+def test_torso_ridge_leaves_out_a_blob_of_head_and_arms():
+    """Hands on the head seen from the side: head and arms one blob, thicker than the trunk.
+    The ridge centroid lands within 2.5 head radii of the head, which the trunk's middle never
+    is; measured again without the silhouette that near the head, it is on the trunk. A ridge
+    already far from the head is left as it is."""
+    sil = np.zeros((300, 240), np.uint8)
+    cv2.rectangle(sil, (70, 60), (130, 200), 255, -1)      # trunk, half width 30.5
+    cv2.rectangle(sil, (75, 200), (95, 290), 255, -1)      # legs
+    cv2.rectangle(sil, (105, 200), (125, 290), 255, -1)
+    head = (100.0, 35.0, 20.0)
+    for step in (1, 2):                                     # the trunk's ridge far from the head: unchanged
+        np.testing.assert_array_equal(torso_point(sil, step=step, head=head)[0], torso_point(sil, step=step)[0])
+    cv2.circle(sil, (100, 45), 44, 255, -1)                # head (radius 20 at (100, 35)) and arms round it
+    for step in (1, 2):
+        xy, _, _ = torso_point(sil, step=step)
+        assert np.hypot(xy[0] - 100, xy[1] - 35) < 2.5 * 20            # the blob's, not the trunk's
+        xy, _, thick = torso_point(sil, step=step, head=head)
+        assert np.hypot(xy[0] - 100, xy[1] - 35) >= 2.5 * 20 and abs(xy[0] - 100) < 1.0 + step
+        assert 85 < xy[1] < 200 and thick == pytest.approx(30.5, abs=1.5 * step)
+
+
 def _reference_torso_point(sil, ridge_frac, step):
     """The torso point with OpenCV's minMaxLoc and moments."""
     sil = np.ascontiguousarray(sil[::step, ::step])
