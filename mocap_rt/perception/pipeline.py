@@ -36,7 +36,7 @@ from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_m
 from mocap_rt.perception.roi import ChangeMask, roi_candidates
 from mocap_rt.perception.leg_attach import MIN_BLOB_AREA_PX, leg_attachment
 from mocap_rt.perception.scene import TORSO_HEAD_RADII, SceneState, check_head, torso_from_head
-from mocap_rt.perception.silhouette import half_cells, silhouette_colour
+from mocap_rt.perception.silhouette import half_cells, silhouette_colour, top_point
 from mocap_rt.perception.torso import DEFAULT_RIDGE_FRAC, HOLE_HEAD_AREAS, torso_point
 
 log = logging.getLogger(__name__)
@@ -192,7 +192,7 @@ class CameraPerceiver:
         sil, skin, shoe = silhouette_colour(member, change, img, box, self._chroma, *self._emax)
         self._sil = sil
         t2 = time.perf_counter()
-        top = self._top_point(sil)
+        top = top_point(sil)
         # with the body's prediction of what each part shows, the blobs' centres are corrected by it
         # instead of by the completion from central symmetry (docs/perception.md, "Where the
         # medians' error lies")
@@ -281,10 +281,3 @@ class CameraPerceiver:
         if cfg.change.edge_strength <= 1.0:
             change = np.full_like(change, 255)      # no boundary clean-up
         return member, change, box
-
-    @staticmethod
-    def _top_point(sil: np.ndarray) -> tuple[float, float]:
-        """Silhouette top (x, y) in box pixels: mean x of the first row, a little below it."""
-        cols = np.flatnonzero(sil[0])
-        x = float(cols.mean()) if cols.size else sil.shape[1] / 2.0
-        return x, 0.06 * sil.shape[0]
