@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap_rt.perception.blob_kernels import N_MOMENTS, REFINE_PARAMS, label_and_refine, params_record
-from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions
+from mocap_rt.perception.region_kernels import acquire_regions
 from mocap_rt.perception.track_kernels import GATE_PARAMS, finish_frame, label_frame
 
 log = logging.getLogger(__name__)
@@ -191,12 +191,12 @@ class BlobTracker:
             self._sums, self._out_xy, self._out_cov, self._out_area, self._out_contours, self._has_contour,
             shape, centers, gate, found)
         acquired = self._none_acquired
-        if n_found < K:
-            acquired = self._acquire(skin_roi, box, centers, found, ~found, top_roi, self._last_seen - (ox, oy))
-            if acquired.any():
-                centers = np.where(acquired[:, None], self._acq_centers, centers)
-                gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
-                found = self._run(skin_roi, sil, box, centers, gate, visible, kp, shape)
+        got = self._acquire(skin_roi, box, centers, found, top_roi, ox, oy) if n_found < K else None
+        if got is not None and got.any():
+            acquired = got
+            centers = np.where(acquired[:, None], self._acq_centers, centers)
+            gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
+            found = self._run(skin_roi, sil, box, centers, gate, visible, kp, shape)
         xy, conf = np.empty((K, 2)), np.empty(K)
         # with label_by_shape and the blobs apart (each blob's pixels its own region): their shapes
         # are kept for the frames they touch
@@ -221,20 +221,20 @@ class BlobTracker:
         return self._sums[:, 0] >= self.params.min_area_px
 
     # ------------------------------------------------------------------ internals
-    def _acquire(self, skin_roi, box, centers, found, missing, top_roi, last_seen) -> np.ndarray:
-        """Assign unclaimed colour regions to missing blobs; sets ``_acq_centers``/``_acq_gate``."""
+    def _acquire(self, skin_roi, box, centers, found, top_roi, ox, oy) -> np.ndarray | None:
+        """Assign unclaimed colour regions to the blobs not found (``found`` False); sets
+        ``_acq_centers``/``_acq_gate`` and returns which were acquired (None: no candidate)."""
         p = self.params
-        K = len(self.roles)
         x0, y0, x1, y1 = box
-        n, stats = colour_regions(skin_roi, x0, y0, x1, y1)
+        n_cand = acquire_regions(skin_roi, x0, y0, x1, y1, self._sums, found, p.acquire_min_area_px, self._acq_cand)
+        if n_cand == 0:
+            return None
+        K = len(self.roles)
+        missing = ~found
+        last_seen = self._last_seen - (ox, oy)
         self._acq_centers = np.full((K, 2), np.nan)
         self._acq_gate = np.zeros(K)
         acquired = np.zeros(K, bool)
-        if n <= 1:
-            return acquired
-        n_cand = acquire_candidates(stats, n, x0, y0, self._sums, found, p.acquire_min_area_px, self._acq_cand)
-        if n_cand == 0:
-            return acquired
         cand = [(area, np.array([cx, cy]), half) for area, cx, cy, half in self._acq_cand[:n_cand].tolist()]
 
         def take(k: int, i: int) -> None:

@@ -18,6 +18,7 @@ Usage::
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -226,7 +227,7 @@ class CameraPerceiver:
             if seat is not None:
                 xy[C_HEAD], area[C_HEAD], conf[C_HEAD] = seat[0], seat[1], 0.5
                 self.skin_tracker.reseat(SKIN_CUES.index("head"), seat[0], 2.0 * np.sqrt(seat[1] / np.pi))
-        if np.isfinite(txy).all():
+        if math.isfinite(txy[0]) and math.isfinite(txy[1]):
             xy[C_TORSO] = ridge
             head_r = self.scene.head_radius(pred_r)      # with this frame's head
             head_torso = (torso_from_head(xy[C_HEAD], head_r, ridge, self.config.torso_head_radii)

@@ -306,3 +306,13 @@ def acquire_candidates(stats, n_labels, x0, y0, sums, found, min_area, cand):  #
         cand[i, 3] = 0.5 * max(xb - xa, yb - ya) + 1.0
         n = min(n + 1, m)
     return n
+
+
+@numba.njit(cache=True, nogil=True)
+def acquire_regions(skin, x0, y0, x1, y1, sums, found, min_area, cand):  # pragma: no cover - numba
+    """``colour_regions`` of the box [x0, x1) x [y0, y1) and their ``acquire_candidates``, in
+    one call (a lost blob runs them every frame). Returns how many rows of cand were written."""
+    n, stats = colour_regions(skin, x0, y0, x1, y1)
+    if n <= 1:
+        return 0
+    return acquire_candidates(stats, n, x0, y0, sums, found, min_area, cand)

@@ -82,22 +82,23 @@ class SceneState:
         return float(statistics.median(self.radii)) if self.radii else float("nan")
 
 
-def trunk_up(ridge_cov: np.ndarray) -> np.ndarray:
-    """Unit (2,) image direction up the trunk from the ridge band's covariance (2, 2) px^2."""
-    a, b, d = (float(v) for v in (ridge_cov[0, 0], ridge_cov[0, 1], ridge_cov[1, 1]))
+def trunk_up(ridge_cov: np.ndarray) -> tuple[float, float]:
+    """Unit image direction (x, y) up the trunk from the ridge band's covariance (2, 2) px^2.
+    Floats, not an array: a small array's cost is most of this function's in the pipeline."""
+    a, b, d = float(ridge_cov[0, 0]), float(ridge_cov[0, 1]), float(ridge_cov[1, 1])
     if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(d)):
-        return np.array([0.0, -1.0])
+        return 0.0, -1.0
     # eigenvalues and the major axis of the symmetric 2x2 in closed form (np.linalg.eigh
     # cost ~30 us a frame)
     half_tr, disc = 0.5 * (a + d), math.hypot(0.5 * (a - d), b)
     if half_tr + disc < ELONGATED ** 2 * max(half_tr - disc, 1e-9):
-        return np.array([0.0, -1.0])
+        return 0.0, -1.0
     ang = 0.5 * math.atan2(2.0 * b, a - d)
-    up = np.array([math.cos(ang), math.sin(ang)])
-    return up if up[1] <= 0 else -up
+    c, s = math.cos(ang), math.sin(ang)
+    return (c, s) if s <= 0 else (-c, -s)
 
 
-def head_score(xy: np.ndarray, area: float, ridge_xy: np.ndarray, up: np.ndarray) -> float:
+def head_score(xy: np.ndarray, area: float, ridge_xy: np.ndarray, up: tuple[float, float]) -> float:
     """How far a blob at ``xy`` (2,) px of ``area`` px^2 is from the head's place on the trunk,
     in its own radii (0 = the median head place; inf = fails the head test). Scalar arithmetic:
     NumPy's per-call overhead on (2,) arrays was most of this function's time."""
@@ -167,7 +168,7 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
     return best[0] + origin, best[1]
 
 
-def _best_head_region(skin: np.ndarray, ridge_xy: np.ndarray, up: np.ndarray,
+def _best_head_region(skin: np.ndarray, ridge_xy: np.ndarray, up: tuple[float, float],
                       min_area: float) -> tuple[np.ndarray, float] | None:
     """(centroid (2,) array px, area px^2) of the connected skin region of ``skin`` (h, w) of
     at least ``min_area`` px^2 that passes the head test best (``head_score``), or None. The

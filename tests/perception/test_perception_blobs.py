@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from mocap_rt.perception.blob_kernels import (REFINE_PARAMS, SHAPE_PIXEL_VAR, deform_ellipse, label_moments,
                                              params_record)
-from mocap_rt.perception.region_kernels import acquire_candidates, colour_regions, snap_window
+from mocap_rt.perception.region_kernels import acquire_candidates, acquire_regions, colour_regions, snap_window
 from mocap_rt.perception.blobs import (SNAP_MAX_REGIONS, SNAP_NEAR_GATES, SNAP_WINDOW_GATES, BlobParams,
                                        BlobTracker)
 from mocap_rt.perception.track_kernels import snap_centres
@@ -524,3 +524,7 @@ def test_acquire_candidates_match_reference(seed):
                            10.0, cand)
     assert m == len(ref)
     np.testing.assert_array_equal(cand[:m], np.array(ref).reshape(-1, 4))
+    # the blob tracker's one call: the regions of the box and their candidates
+    cand2 = np.full((4, 4), np.nan)
+    assert acquire_regions(skin, x0, y0, skin.shape[1], skin.shape[0], sums, found, 10.0, cand2) == m
+    np.testing.assert_array_equal(cand2[:m], cand[:m])
