@@ -110,8 +110,9 @@ class BackgroundModel:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _change_kernel(img, mean, inv_ee, thr2, x0, y0, a_min, a_max, strong2, out):  # pragma: no cover - numba
-    """Change test on the box [x0, x0+w) x [y0, y0+h) of full-size arrays; out (h, w) uint8.
+def _change_kernel(img, mean, inv_ee, thr2, x0, y0, w, h, a_min, a_max, strong2, out, ox, oy):  # pragma: no cover
+    """Change test on the box [x0, x0+w) x [y0, y0+h) of full-size arrays, written to
+    out[oy:oy+h, ox:ox+w] (uint8; a full-size buffer takes the box in place with ox, oy = x0, y0).
 
     out: 0 unchanged, 128 changed, 255 changed with ``strong2`` times the squared threshold
     (the pipeline keeps silhouette-boundary pixels only when strongly changed).
@@ -121,21 +122,19 @@ def _change_kernel(img, mean, inv_ee, thr2, x0, y0, a_min, a_max, strong2, out):
     [a_min, a_max] is a change only if the plain colour distance also exceeds the threshold
     (dark pixels have noisy ratios).
     """
-    h, w = out.shape
     W = img.shape[1]
     # flat rows with unit stride: the loop vectorises (~4x faster than 3D indexing)
     img_f = img.reshape(-1)
     mean_f = mean.reshape(-1)
     inv_ee_f = inv_ee.reshape(-1)
     thr2_f = thr2.reshape(-1)
-    out_f = out.reshape(-1)
     for yy in range(h):
         p0 = (y0 + yy) * W + x0                  # first pixel of the row
         img_r = img_f[3 * p0:3 * (p0 + w)]
         mean_r = mean_f[3 * p0:3 * (p0 + w)]
         inv_ee_r = inv_ee_f[p0:p0 + w]
         thr2_r = thr2_f[p0:p0 + w]
-        out_r = out_f[yy * w:(yy + 1) * w]
+        out_r = out[oy + yy, ox:ox + w]
         for xx in range(w):
             i0 = np.float32(img_r[3 * xx])
             i1 = np.float32(img_r[3 * xx + 1])
@@ -165,18 +164,32 @@ def change_mask(image_bgr: np.ndarray, model: BackgroundModel, roi: tuple[int, i
     0 = unchanged, 128 = changed, 255 = changed by more than ``thresholds.edge_strength``
     times the thresholds. roi : (x, y, w, h) pixels, None = whole image. No clean-up.
     """
-    img = np.ascontiguousarray(image_bgr)
-    if img.shape[:2] != model.mean_bgr.shape[:2] or img.ndim != 3 or img.dtype != np.uint8:
-        raise ValueError(f"image {img.shape} {img.dtype} does not match background {model.mean_bgr.shape} uint8")
+    img = checked_image(image_bgr, model)
     x, y, w, h = roi if roi is not None else (0, 0, img.shape[1], img.shape[0])
     if out is None:
         out = np.empty((h, w), np.uint8)
     elif out.shape != (h, w) or out.dtype != np.uint8 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous ({h}, {w}) uint8 array, got {out.shape} {out.dtype}")
-    inv_ee, thr2 = model.derived(thresholds)
-    _change_kernel(img, model.mean_bgr, inv_ee, thr2, x, y, np.float32(thresholds.alpha_min),
-                   np.float32(thresholds.alpha_max), np.float32(thresholds.edge_strength ** 2), out)
+    change_into(img, model, thresholds, (x, y, w, h), out, 0, 0)
     return out
+
+
+def checked_image(image_bgr: np.ndarray, model: BackgroundModel) -> np.ndarray:
+    """``image_bgr`` as a C-contiguous (H, W, 3) uint8 array of the background's size, or ValueError."""
+    img = np.ascontiguousarray(image_bgr)
+    if img.shape[:2] != model.mean_bgr.shape[:2] or img.ndim != 3 or img.dtype != np.uint8:
+        raise ValueError(f"image {img.shape} {img.dtype} does not match background {model.mean_bgr.shape} uint8")
+    return img
+
+
+def change_into(img: np.ndarray, model: BackgroundModel, thresholds: ChangeThresholds,
+                roi: tuple[int, int, int, int], out: np.ndarray, ox: int, oy: int) -> None:
+    """``change_mask``'s codes of ``roi`` (x, y, w, h) written to out[oy:oy+h, ox:ox+w] (a
+    C-contiguous uint8 array holding it); img as ``checked_image`` returns it."""
+    inv_ee, thr2 = model.derived(thresholds)
+    x, y, w, h = roi
+    _change_kernel(img, model.mean_bgr, inv_ee, thr2, x, y, w, h, np.float32(thresholds.alpha_min),
+                   np.float32(thresholds.alpha_max), np.float32(thresholds.edge_strength ** 2), out, ox, oy)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, change_mask
+from mocap_rt.perception.background import BackgroundModel, ChangeThresholds, change_into, checked_image
 
 ROI_MOTION_GAIN = 2     # a side's last outward motion (px/frame) is allowed this many times over
 
@@ -86,8 +86,9 @@ class ChangeMask:
             if not (x0 <= dx0 and y0 <= dy0 and x1 >= dx1 and y1 >= dy1):
                 raise ValueError(f"change mask: {rect} does not hold the region already computed {self.done}")
             bands = [(x0, y0, x1, dy0), (x0, dy1, x1, y1), (x0, dy0, dx0, dy1), (dx1, dy0, x1, dy1)]
+        img = checked_image(img, model)
         for bx0, by0, bx1, by1 in bands:
             if bx1 > bx0 and by1 > by0:
-                self.buf[by0:by1, bx0:bx1] = change_mask(img, model, (bx0, by0, bx1 - bx0, by1 - by0), thresholds)
+                change_into(img, model, thresholds, (bx0, by0, bx1 - bx0, by1 - by0), self.buf, bx0, by0)
         self.done = rect
         return self.buf[y0:y1, x0:x1]
