@@ -127,7 +127,7 @@ class CameraPerceiver:
         self.config = config
         self.background = BackgroundModel.from_frames(np.asarray(backgrounds))
         self.background.derived(config.change)     # the change test's per-pixel tables now (~7 ms at
-        w, h = self.background.size                # 640x480), not in the first frame's latency
+        w, h = self._wh = self.background.size     # 640x480), not in the first frame's latency
         self._close_kernel = (cv2.getStructuringElement(cv2.MORPH_RECT, (config.close_px, config.close_px))
                               if config.close_px > 0 else None)
         if tuple(int(v) for v in camera.size) != (w, h):
@@ -172,7 +172,7 @@ class CameraPerceiver:
         """Cues of one frame. image_bgr (H, W, 3) uint8 BGR; prediction for this frame or None."""
         t0 = time.perf_counter()
         img = np.asarray(image_bgr)
-        w, h = self.background.size
+        w, h = self._wh
         if img.shape != (h, w, 3) or img.dtype != np.uint8:
             raise ValueError(f"camera {self.camera.name}: expected ({h}, {w}, 3) uint8 BGR, "
                              f"got {img.shape} {img.dtype}")
@@ -257,7 +257,7 @@ class CameraPerceiver:
         """Filled component (bh, bw) uint8 {0, 255} and change codes (``change_mask``) in the
         person box (x, y, w, h) image px; the boundary clean-up is ``silhouette_colour``'s.
         The regions searched are ``roi.roi_candidates``, smallest first."""
-        w, h = self.background.size
+        w, h = self._wh
         cfg = self.config
         self._change.start()
         for rx0, ry0, rx1, ry1 in roi_candidates(self._box, self._prev_box, (w, h), cfg.roi_margin_px,

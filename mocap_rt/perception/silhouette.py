@@ -121,19 +121,23 @@ def half_cells(sil, step):  # pragma: no cover - numba
     edge count as background. ``cues.CompactSilhouette.from_box_mask``'s cells (its area mean
     >= 0.5), by counting: identical for steps 2-5, the steps of boxes up to 640 x 480.
 
-    Row by row: the row's pixels as 0 / 1, then each cell's ``step`` columns added with a
-    stride of ``step`` (unit-stride loops the compiler vectorises)."""
+    Row of cells by row of cells: the person pixels of its ``step`` rows summed per column (a
+    unit-stride loop the compiler vectorises), then each cell's ``step`` columns (14 -> 7-10 us
+    on a 640x480 person box against adding each row's pixels to the cells with a stride)."""
     bh, bw = sil.shape
     h, w = -(-bh // step), -(-bw // step)
     counts = np.zeros((h, w), np.int32)
-    ones = np.zeros(w * step, np.int32)       # the row as 0 / 1, zero-padded to whole cells
-    for y in range(bh):
-        row = sil[y]
-        for x in range(bw):
-            ones[x] = np.int32(row[x] != 0)
-        c_row = counts[y // step]
+    col = np.zeros(w * step, np.int32)       # per column of the row of cells, zero-padded to whole cells
+    for i in range(h):
+        col[:] = 0
+        for y in range(i * step, min((i + 1) * step, bh)):
+            row = sil[y]
+            for x in range(bw):
+                col[x] += np.int32(row[x] != 0)
+        c_row = counts[i]
         for d in range(step):
-            c_row += ones[d::step]
+            for k in range(w):
+                c_row[k] += col[k * step + d]
     out = np.empty((h, w), np.bool_)
     for i in range(h):
         for j in range(w):
