@@ -148,7 +148,8 @@ class BlobTracker:
     def step(self, skin_roi: np.ndarray, roi_xy: tuple[int, int], person_box_roi: tuple[int, int, int, int],
              top_roi: tuple[float, float] | None, pred_xy: np.ndarray | None = None,
              pred_visible: np.ndarray | None = None, pred_radius: np.ndarray | None = None,
-             sil_roi: np.ndarray | None = None, pred_shape: np.ndarray | None = None) -> BlobFrame:
+             sil_roi: np.ndarray | None = None, pred_shape: np.ndarray | None = None,
+             out: BlobFrame | None = None) -> BlobFrame:
         """Track one frame.
 
         skin_roi : (h, w) colour map of the region of interest, float32 (>= 0.5 = colour pixel) or
@@ -164,15 +165,19 @@ class BlobTracker:
         pred_shape : (K, 2, 2) predicted covariance of each blob, px^2 (not finite: none), for
             ``label_by_shape``: it replaces the shape when last apart (one that is not positive
             definite turns the shapes off for the frame, ``label_moments``).
+        out : the frame's arrays to write (e.g. views of a camera's cue arrays) and return;
+            None: new ones.
         """
         p = self.params
         K = len(self.roles)
         ox, oy = roi_xy
         bx, by, bw, bh = person_box_roi
+        res = out if out is not None else BlobFrame(np.empty((K, 2)), np.empty((K, 2, 2)), np.empty(K), np.empty(K))
         if bw <= 0 or bh <= 0:
             self._coast += 1
             self._has_contour[:] = False
-            return BlobFrame(np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan), np.zeros(K), np.zeros(K))
+            res.xy[:], res.cov[:], res.area[:], res.confidence[:] = np.nan, np.nan, 0.0, 0.0
+            return res
         use_pred = pred_xy is not None
         visible = self._all_visible if pred_visible is None else np.asarray(pred_visible, np.bool_)
         sil = sil_roi if sil_roi is not None else _NO_SIL
@@ -197,15 +202,14 @@ class BlobTracker:
             centers = np.where(acquired[:, None], self._acq_centers, centers)
             gate = np.where(acquired, np.maximum(gate, self._acq_gate), gate)
             found = self._run(skin_roi, sil, box, centers, gate, visible, kp, shape)
-        xy, conf = np.empty((K, 2)), np.empty(K)
         # with label_by_shape and the blobs apart (each blob's pixels its own region): their shapes
         # are kept for the frames they touch
         finish_frame(self._sums[:, 0], found, visible, acquired, 4.0 * p.min_area_px, float(ox), float(oy),
-                     self._out_xy, self._out_cov, xy, conf, self._xy, self._vel, self._radius, self._coast,
-                     self._last_seen, int(p.max_coast_frames), self._has_contour, p.label_by_shape and apart,
-                     self._apart_cov)
+                     self._out_xy, self._out_cov, res.xy, res.confidence, self._xy, self._vel, self._radius,
+                     self._coast, self._last_seen, int(p.max_coast_frames), self._has_contour,
+                     p.label_by_shape and apart, self._apart_cov, self._out_area, res.cov, res.area)
         self._offset = roi_xy
-        return BlobFrame(xy, self._out_cov.copy(), self._out_area.copy(), conf)
+        return res
 
     def last_contours(self) -> list:
         """The last frame's deformed contours, K entries: (n_pts, 2) float64 image px, or None

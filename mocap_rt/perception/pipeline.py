@@ -32,7 +32,7 @@ from mocap_rt.geometry.camera import Camera
 from mocap_rt.names import C_HEAD, C_TORSO, CUE_NAMES, N_CUES, SHOE_CUE_INDEX, SHOE_CUES, SKIN_CUE_INDEX, SKIN_CUES
 from mocap_rt.perception.background import BackgroundModel, ChangeThresholds
 from mocap_rt.perception.components import largest_component_box
-from mocap_rt.perception.blobs import BlobParams, BlobTracker
+from mocap_rt.perception.blobs import BlobFrame, BlobParams, BlobTracker
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, colour_model_from_spec
 from mocap_rt.perception.roi import ChangeMask, roi_candidates
 from mocap_rt.perception.leg_attach import MIN_BLOB_AREA_PX, leg_attachment
@@ -200,15 +200,14 @@ class CameraPerceiver:
         offsets = None if prediction is None else prediction.offset_px
         offset_rows = None if offsets is None else np.isfinite(offsets[:, 0])
         for tracker, idx, cmap in ((self.skin_tracker, _SKIN_IDX, skin), (self.shoe_tracker, _SHOE_IDX, shoe)):
+            out = BlobFrame(xy[idx], cov[idx], area[idx], conf[idx])         # views: the tracker writes the cues
             if prediction is not None:
                 corrected = offset_rows is not None and bool(offset_rows[idx].any())
-                res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, prediction.xy[idx],
-                                   prediction.visible[idx], prediction.radius_px[idx],
-                                   sil_roi=None if corrected else sil,
-                                   pred_shape=None if prediction.shape_px is None else prediction.shape_px[idx])
+                tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, prediction.xy[idx], prediction.visible[idx],
+                             prediction.radius_px[idx], sil_roi=None if corrected else sil,
+                             pred_shape=None if prediction.shape_px is None else prediction.shape_px[idx], out=out)
             else:
-                res = tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, sil_roi=sil)
-            xy[idx], cov[idx], area[idx], conf[idx] = res.xy, res.cov, res.area, res.confidence
+                tracker.step(cmap, (bx, by), (0, 0, bw, bh), top, sil_roi=sil, out=out)
         leg_xy = np.empty((2, 2))
         leg_attachment(sil, bx, by, xy[_SHOE_IDX], cov[_SHOE_IDX], area[_SHOE_IDX], MIN_BLOB_AREA_PX, leg_xy)
         if offsets is not None:

@@ -77,7 +77,7 @@ def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_p
 
 @numba.njit(cache=True, nogil=True)
 def finish_frame(n_px, found, visible, acquired, full_px, ox, oy, roi_xy, cov, xy_img, conf, xy, vel, radius, coast,
-                 last_seen, max_coast, has_contour, keep_shape, apart_cov):  # pragma: no cover - numba
+                 last_seen, max_coast, has_contour, keep_shape, apart_cov, area, out_cov, out_area):  # pragma: no cover
     """The end of a tracker's frame, for its K blobs.
 
     n_px (K,) labelled pixels, found / visible / acquired (K,) bool (visible: predicted
@@ -88,7 +88,8 @@ def finish_frame(n_px, found, visible, acquired, full_px, ox, oy, roi_xy, cov, x
     ``BlobTracker.step`` computed them in NumPy (same operations, same order); then the track
     state (``update_tracks``). A blob not found loses its contour (``has_contour`` (K,) bool);
     with ``keep_shape`` each found blob's cov is kept in ``apart_cov`` (K, 2, 2) (its shape
-    while apart from the others, ``BlobParams.label_by_shape``).
+    while apart from the others, ``BlobParams.label_by_shape``). cov and area (K,) are copied to
+    out_cov and out_area (the frame's outputs).
     """
     for k in range(found.shape[0]):
         has_contour[k] = has_contour[k] and found[k]
@@ -98,6 +99,8 @@ def finish_frame(n_px, found, visible, acquired, full_px, ox, oy, roi_xy, cov, x
         xy_img[k, 1] = roi_xy[k, 1] + oy
         conf[k] = (min(1.0, n_px[k] / full_px) * (1.0 if visible[k] else 0.5) * (0.5 if acquired[k] else 1.0)
                    * (1.0 if found[k] else 0.0))
+        out_cov[k] = cov[k]
+        out_area[k] = area[k]
     update_tracks(found, xy_img, cov, xy, vel, radius, coast, last_seen, max_coast)
 
 

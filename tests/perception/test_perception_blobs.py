@@ -156,6 +156,26 @@ def _hands_frame(hl, hr, head=(100, 30), size=(200, 160)):
     return skin
 
 
+def test_tracker_writes_into_the_given_arrays():
+    """``step(..., out=...)`` writes the frame into the caller's arrays (the pipeline passes views
+    of a camera's cue arrays) and returns them: the same figures as a step without them."""
+    from mocap_rt.perception.blobs import BlobFrame
+
+    a, b = BlobTracker(("head", "hand_l", "hand_r")), BlobTracker(("head", "hand_l", "hand_r"))
+    xy, cov, area, conf = np.full((6, 2), -1.0), np.full((6, 2, 2), -1.0), np.full(6, -1.0), np.full(6, -1.0)
+    hl, hr = np.array([150.0, 90.0]), np.array([50.0, 90.0])
+    for f in range(4):
+        skin = _hands_frame(hl + (2 * f, f), hr)
+        plain = a.step(skin, (5, 7), (0, 0, 200, 160), (100.0, 10.0))
+        out = BlobFrame(xy[:3], cov[:3], area[:3], conf[:3])
+        assert b.step(skin, (5, 7), (0, 0, 200, 160), (100.0, 10.0), out=out) is out
+        for got, want in ((xy[:3], plain.xy), (cov[:3], plain.cov), (area[:3], plain.area), (conf[:3], plain.confidence)):
+            np.testing.assert_array_equal(got, want)
+    assert (xy[3:] == -1).all() and (conf[3:] == -1).all()         # rows outside the views untouched
+    b.step(skin, (5, 7), (0, 0, 0, 0), None, out=out)               # no person: the rows cleared
+    assert np.isnan(xy[:3]).all() and (conf[:3] == 0).all()
+
+
 def test_tracker_acquires_head_and_hands_then_follows_them():
     tr = BlobTracker(("head", "hand_l", "hand_r"), BlobParams())
     hl, hr = np.array([150.0, 90.0]), np.array([50.0, 90.0])
