@@ -215,6 +215,7 @@ class CameraPerceiver:
         t3 = time.perf_counter()
         pred_r = float("nan") if prediction is None else float(prediction.radius_px[C_HEAD])
         head_r = self.scene.head_radius(pred_r)          # scaled to this frame's depth by the prediction
+        n_radii = self.scene.measured
         hole_px = self.config.torso_hole_head_areas * np.pi * head_r ** 2       # NaN before a head is seen
         loops = (member, change, hole_px) if hole_px > 0 else None
         head = (xy[C_HEAD, 0] - bx, xy[C_HEAD, 1] - by, head_r)
@@ -228,7 +229,8 @@ class CameraPerceiver:
                 self.skin_tracker.reseat(SKIN_CUES.index("head"), seat[0], 2.0 * np.sqrt(seat[1] / np.pi))
         if math.isfinite(txy[0]) and math.isfinite(txy[1]):
             xy[C_TORSO] = ridge
-            head_r = self.scene.head_radius(pred_r)      # with this frame's head
+            if self.scene.measured != n_radii:
+                head_r = self.scene.head_radius(pred_r)  # with this frame's head
             head_torso = (torso_from_head(xy[C_HEAD], head_r, ridge, self.config.torso_head_radii)
                           if self.config.torso_head_radii > 0 else None)
             if head_torso is not None:

@@ -68,6 +68,7 @@ class SceneState:
     pred_radii: deque = field(default_factory=lambda: deque(maxlen=HISTORY_FRAMES))  # predicted then (NaN: none)
     suspect_frames: int = 0
     confirmed: bool = False      # the head label has passed the head test once
+    measured: int = 0            # head radii appended so far (the median changes only then)
 
     def head_radius(self, pred_radius: float = float("nan")) -> float:
         """Median recent head radius, px (NaN before any). With this frame's predicted head
@@ -116,18 +117,20 @@ def head_score(xy: np.ndarray, area: float, ridge_xy: np.ndarray, up: tuple[floa
 
 
 def torso_from_head(head_xy: np.ndarray, head_r: float, ridge_xy: np.ndarray,
-                    k: float = TORSO_HEAD_RADII) -> np.ndarray | None:
-    """Torso (2,) px on the line head -> ridge centroid, ``k * head_r`` from the head; None
-    when the head, its radius or the direction is unknown."""
+                    k: float = TORSO_HEAD_RADII) -> tuple[float, float] | None:
+    """Torso (x, y) px on the line head -> ridge centroid, ``k * head_r`` from the head; None
+    when the head, its radius or the direction is unknown. Floats: NumPy's small arrays were
+    most of this function's cost in the pipeline."""
     hx, hy, rx, ry = float(head_xy[0]), float(head_xy[1]), float(ridge_xy[0]), float(ridge_xy[1])
-    if not all(math.isfinite(v) for v in (hx, hy, head_r, rx, ry)):
+    if not (math.isfinite(hx) and math.isfinite(hy) and math.isfinite(head_r) and math.isfinite(rx)
+            and math.isfinite(ry)):
         return None
     dx, dy = rx - hx, ry - hy
     n = float(np.hypot(dx, dy))                             # (not math.hypot: NumPy's last bit)
     if n < 1e-6:
         return None
     kr = k * head_r
-    return np.array([hx + kr * dx / n, hy + kr * dy / n])    # NumPy's order: (k r d) / n
+    return hx + kr * dx / n, hy + kr * dy / n               # NumPy's order: (k r d) / n
 
 
 def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_conf: float,
@@ -151,6 +154,7 @@ def check_head(state: SceneState, head_xy: np.ndarray, head_area: float, head_co
         if head_conf >= 0.9:                 # a full, visible blob: its size scales the torso
             state.radii.append(math.sqrt(head_area / math.pi))
             state.pred_radii.append(pred_radius)
+            state.measured += 1
         return None
     state.suspect_frames += 1
     # a label that never passed has no evidence to keep: re-seated at once (a cold start took
