@@ -190,7 +190,7 @@ class CameraPerceiver:
             return CameraCues(self.camera.name, frame, xy, cov, area, conf, (0, 0, 0, 0),
                               {"silhouette": (t1 - t0) * 1e3, "total": (t - t0) * 1e3}, empty)
         bx, by, bw, bh = box
-        sil, skin, shoe = silhouette_colour(member, change, img, box, self._chroma, *self._emax)
+        sil, skin, shoe, n_sil = silhouette_colour(member, change, img, box, self._chroma, *self._emax)
         self._sil = sil
         t2 = time.perf_counter()
         top = top_point(sil)
@@ -220,7 +220,7 @@ class CameraPerceiver:
         loops = (member, change, hole_px) if hole_px > 0 else None
         head = (xy[C_HEAD, 0] - bx, xy[C_HEAD, 1] - by, head_r)
         txy, tcov, thick = torso_point(sil, self.config.torso_ridge_frac, self._torso_step, loops, head)
-        ridge = txy + (bx, by)
+        ridge = np.array((txy[0] + bx, txy[1] + by))
         if self.config.head_check:
             seat = check_head(self.scene, xy[C_HEAD], area[C_HEAD], conf[C_HEAD], ridge, tcov, skin, (bx, by),
                               pred_r)
@@ -239,7 +239,7 @@ class CameraPerceiver:
                 # bias correction (docs/perception.md, Torso), for a studio that measured it
                 xy[C_TORSO] -= self.config.torso_head_shift_frac * (xy[C_HEAD] - xy[C_TORSO])
             cov[C_TORSO] = tcov
-            area[C_TORSO] = float(np.count_nonzero(sil))
+            area[C_TORSO] = float(n_sil)
             conf[C_TORSO] = 1.0
         t4 = time.perf_counter()
         if self.config.background_update_rate > 0:

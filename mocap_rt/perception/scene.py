@@ -86,7 +86,7 @@ class SceneState:
 def trunk_up(ridge_cov: np.ndarray) -> tuple[float, float]:
     """Unit image direction (x, y) up the trunk from the ridge band's covariance (2, 2) px^2.
     Floats, not an array: a small array's cost is most of this function's in the pipeline."""
-    a, b, d = float(ridge_cov[0, 0]), float(ridge_cov[0, 1]), float(ridge_cov[1, 1])
+    (a, b), (_, d) = ridge_cov.tolist()
     if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(d)):
         return 0.0, -1.0
     # eigenvalues and the major axis of the symmetric 2x2 in closed form (np.linalg.eigh

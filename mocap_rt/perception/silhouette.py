@@ -28,6 +28,7 @@ def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b,
     two models (``colour_model.chroma_table``, thresholds ``emax_a``, ``emax_b``): exactly
     ``colour_model.colour_maps_binary``. Outputs (h, w): sil uint8 {0, 255}, map_a / map_b
     uint8 {0, 1} (a quarter of float32's memory traffic; the blob stage takes them as they are).
+    Returns the silhouette's pixel count.
 
     Row by row, each step a branch-free loop the compiler vectorises: the silhouette row,
     then (rows with silhouette only) the normalised chromaticities ``r / s``, ``g / s``
@@ -41,6 +42,7 @@ def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b,
     rn_row = np.empty(w, np.float32)
     gn_row = np.empty(w, np.float32)
     si_row = np.empty(w, np.int32)
+    n_total = 0
     for y in range(h):
         m = member[y]
         up = member[max(y - 1, 0)]
@@ -55,7 +57,8 @@ def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b,
                                     | (ch[x] == 255))
             s_row[x] = np.uint8(255) * np.uint8(inside)
             n_sil += np.int64(inside)
-        for x in (0, w - 1):                          # the row's ends, border replicated
+        for e in range(min(w, 2)):                    # the row's ends, border replicated (once if w = 1)
+            x = e * (w - 1)
             inside = (m[x] != 0) & (((m[max(x - 1, 0)] != 0) & (m[min(x + 1, w - 1)] != 0) & (up[x] != 0)
                                      & (dn[x] != 0)) | (ch[x] == 255))
             s_row[x] = np.uint8(255) * np.uint8(inside)
@@ -64,6 +67,7 @@ def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b,
         b_row[:] = 0
         if n_sil == 0:
             continue
+        n_total += n_sil
         px = flat[3 * ((y0 + y) * W + x0):3 * ((y0 + y) * W + x0 + w)]
         for x in range(w):
             si = np.int32(px[3 * x]) + np.int32(px[3 * x + 1]) + np.int32(px[3 * x + 2])
@@ -86,6 +90,7 @@ def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b,
                 dg = gn_row[x] - table[si, 3]
                 if dr * dr + dg * dg <= emax_b:
                     b_row[x] = 1
+    return n_total
 
 
 @numba.njit(cache=True, nogil=True)
@@ -103,15 +108,16 @@ def top_point(sil):  # pragma: no cover - numba
 
 
 def silhouette_colour(member: np.ndarray, change: np.ndarray, img: np.ndarray, box: tuple[int, int, int, int],
-                      table: np.ndarray, emax_a: float, emax_b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(sil (h, w) uint8 {0, 255}, map_a, map_b (h, w) uint8 {0, 1}) of the person box
-    (``silhouette_colour_kernel``); member / change (h, w) uint8 over the box."""
+                      table: np.ndarray, emax_a: float, emax_b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(sil (h, w) uint8 {0, 255}, map_a, map_b (h, w) uint8 {0, 1}, the silhouette's pixel
+    count) of the person box (``silhouette_colour_kernel``); member / change (h, w) uint8 over
+    the box."""
     h, w = member.shape
     sil = np.empty((h, w), np.uint8)
     map_a = np.empty((h, w), np.uint8)
     map_b = np.empty((h, w), np.uint8)
-    silhouette_colour_kernel(member, change, img, box[0], box[1], table, emax_a, emax_b, sil, map_a, map_b)
-    return sil, map_a, map_b
+    n = silhouette_colour_kernel(member, change, img, box[0], box[1], table, emax_a, emax_b, sil, map_a, map_b)
+    return sil, map_a, map_b, n
 
 
 @numba.njit(cache=True, nogil=True)

@@ -74,7 +74,8 @@ def torso_point(silhouette: np.ndarray, ridge_frac: float = DEFAULT_RIDGE_FRAC, 
         member, change, min_area_px = loops
         sil = clear_large_holes(sil, member, change, step, min_area_px / (step * step))
     out = _ridge(sil, ridge_frac, step)
-    if head is not None and all(math.isfinite(v) for v in head) and head[2] > 0:
+    if head is not None and math.isfinite(head[0]) and math.isfinite(head[1]) and math.isfinite(head[2]) \
+            and head[2] > 0:
         near = RIDGE_MIN_HEAD_RADII * head[2]
         if math.hypot(out[0][0] - head[0], out[0][1] - head[1]) < near:
             yy, xx = np.ogrid[:sil.shape[0], :sil.shape[1]]

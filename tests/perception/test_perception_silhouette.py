@@ -34,13 +34,14 @@ def test_silhouette_colour_equals_morphology_and_numpy_colour_model(seed):
     change = rng.choice(np.array([0, 128, 255], np.uint8), (H, W))
     x0, y0, w, h = 4, 6, 55, 48                   # the person box inside the image
     box = np.s_[y0:y0 + h, x0:x0 + w]
-    sil, map_a, map_b = silhouette_colour(member[box], change[box], img, (x0, y0, w, h),
-                                          chroma_table(skin.kernel_params(), shoe.kernel_params()),
-                                          skin.max_error, shoe.max_error)
+    sil, map_a, map_b, n_sil = silhouette_colour(member[box], change[box], img, (x0, y0, w, h),
+                                                 chroma_table(skin.kernel_params(), shoe.kernel_params()),
+                                                 skin.max_error, shoe.max_error)
     # boundary rule: interior (3x3 cross erosion, border replicated) or strongly changed
     core = cv2.erode(member[box], cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)), borderType=cv2.BORDER_REPLICATE)
     ref_sil = np.where((core > 0) | ((member[box] > 0) & (change[box] == 255)), 255, 0).astype(np.uint8)
     np.testing.assert_array_equal(sil, ref_sil)
+    assert n_sil == np.count_nonzero(ref_sil)
     # colour: eq. 2 error of the NumPy model on silhouette pixels, in the model's grey range
     rgb = img[box][..., ::-1].reshape(-1, 3)
     for model, got in ((skin, map_a), (shoe, map_b)):
@@ -91,10 +92,11 @@ def test_silhouette_colour_is_exactly_the_two_stages(seed, w, h):
     member = np.where(rng.random((h, w)) < 0.7, 255, 0).astype(np.uint8)
     change = rng.choice(np.array([0, 128, 255], np.uint8), (h, w))
     x0, y0 = 3, 2
-    sil, map_a, map_b = silhouette_colour(member, change, img, (x0, y0, w, h),
-                                          chroma_table(skin.kernel_params(), shoe.kernel_params()),
-                                          skin.max_error, shoe.max_error)
+    sil, map_a, map_b, n_sil = silhouette_colour(member, change, img, (x0, y0, w, h),
+                                                 chroma_table(skin.kernel_params(), shoe.kernel_params()),
+                                                 skin.max_error, shoe.max_error)
     ref_sil = keep_strong_boundary(member, change)
+    assert n_sil == np.count_nonzero(ref_sil)
     ref_a, ref_b = colour_maps_binary(np.ascontiguousarray(img[y0:y0 + h, x0:x0 + w]), skin, shoe, ref_sil)
     np.testing.assert_array_equal(sil, ref_sil)
     np.testing.assert_array_equal(map_a, ref_a)
