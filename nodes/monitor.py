@@ -107,6 +107,12 @@ class ServiceMonitor:
         with self._lock:
             return [p for p in self.poses if p.t_recv_ns >= t_ns]
 
+    def snapshot(self) -> tuple[list[int], list[PoseEvent]]:
+        """(the triggers' monotonic ns, the poses seen), copied under the lock: the callbacks
+        append from the transport's threads while a report reads them."""
+        with self._lock:
+            return list(self.triggers.values()), list(self.poses)
+
     def first_trigger_ns(self) -> int | None:
         """Monotonic ns of the first trigger seen (None before it)."""
         with self._lock:

@@ -43,12 +43,13 @@ def run_stats(launcher) -> dict:
     trig, poses, no_pose = m.counts() if m else (0, 0, 0)
     table = m.node_table() if m else {}
     lat = percentiles(m.latencies_ms()) if m else percentiles([])
+    t, events = m.snapshot() if m else ([], [])   # (not m.triggers / m.poses: the callbacks append to them)
     run_s = 0.0
-    if m is not None and len(m.triggers) > 1:     # first to last trigger seen, plus a period
-        t = sorted(m.triggers.values())
+    if len(t) > 1:                                # first to last trigger seen, plus a period
+        t.sort()
         run_s = (t[-1] - t[0]) / 1e9 + (t[-1] - t[0]) / 1e9 / (len(t) - 1)
-    missing_any = sum(1 for p in m.poses if p.cameras_missing) if m else 0
-    missing_by_camera = Counter(c for p in m.poses for c in p.cameras_missing) if m else Counter()
+    missing_any = sum(1 for p in events if p.cameras_missing)
+    missing_by_camera = Counter(c for p in events for c in p.cameras_missing)
     nodes = {}
     for name, n in launcher.nodes.items():
         st = table.get(name, {})

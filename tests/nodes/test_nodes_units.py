@@ -438,3 +438,50 @@ def test_demo_summary_names_the_cameras_most_often_missing():
     counts = {"cam_1": 0, "cam_2": 5, "cam_3": 12, "cam_4": 1, "cam_5": 4, "cam_6": 0}
     assert _most_missing(counts) == "; late or missing: cam_3 12, cam_2 5, cam_5 4"
     assert _most_missing({"cam_1": 0, "cam_2": 0}) == ""
+
+
+# ------------------------------------------------------------------ monitor
+def test_run_stats_reads_the_monitor_while_poses_arrive():
+    """The transport's threads append poses while a report counts them: ``run_stats`` reads a
+    copy taken under the monitor's lock (it iterated the live deque, and a fault test met
+    'deque mutated during iteration')."""
+    from types import SimpleNamespace
+
+    from nodes.monitor import PoseEvent, ServiceMonitor
+    from nodes.run_report import run_stats
+
+    class Session:
+        def declare_subscriber(self, key, cb):
+            return None
+
+    mon = ServiceMonitor(Session(), Keys("r"))
+    launcher = SimpleNamespace(monitor=mon, nodes={}, cpu_at_start={}, rig_name="r", trigger_fps=30.0,
+                               cfg=SimpleNamespace(source="replay:x", speed=1.0),
+                               rig=SimpleNamespace(names=("cam_1", "cam_2")), log_dir="/tmp")
+    stop = threading.Event()
+
+    def feed():
+        for f in range(200_000):
+            if stop.is_set():
+                break
+            with mon._lock:                        # as ServiceMonitor._ingest appends
+                mon.triggers[f] = f * 33 * MS
+                mon.poses.append(PoseEvent(f, f * 33 * MS, f * 33 * MS + 10 * MS, f * 33 * MS + 11 * MS,
+                                           ("cam_1",), ("cam_2",)))
+            time.sleep(0)                          # let the reader take the lock
+
+    import sys
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)                    # threads switch often: the race shows at once
+    t = threading.Thread(target=feed)
+    t.start()
+    try:
+        for _ in range(50):
+            stats = run_stats(launcher)
+            assert stats["poses_missing_camera"]["cam_2"] == stats["poses_with_missing_cameras"]
+    finally:
+        stop.set()
+        t.join()
+        sys.setswitchinterval(interval)
+    assert stats["poses_with_missing_cameras"] > 0
