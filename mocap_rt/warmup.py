@@ -197,6 +197,8 @@ def exercise(motion: Path | None, work: Path, rec: Path | None = None) -> None:
         return
     import numpy as np
 
+    from mocap_rt.body.calibrate import frame_costs
+    from mocap_rt.body.silhouette import SilhouetteTargets
     from mocap_rt.cues import N_CUES, CameraCues, CompactSilhouette
     from mocap_rt.fusion.config import FusionConfig
     from mocap_rt.fusion.tracker import BodyTracker
@@ -218,6 +220,8 @@ def exercise(motion: Path | None, work: Path, rec: Path | None = None) -> None:
                                       np.ones(N_CUES), silhouette=CompactSilhouette.box_around(uv))
         tracker.step(f, cues)
         tracker.predict(f + 1)
+    # the bone lengths' fit to the silhouettes (after the first seconds: body.calibrate)
+    frame_costs(tracker.lengths, [(pts, np.eye(3), SilhouetteTargets.from_cues(rig.cameras, cues))])
 
 
 def exercise_outputs() -> None:

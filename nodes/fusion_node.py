@@ -61,11 +61,12 @@ class FusionSettings(NodeSettings):
 
 def make_tracker(rig, fps: float, bone_lengths=None):
     """D's ``BodyTracker`` with its default config at the stream's frame rate; the bone
-    lengths are estimated from the first seconds of cues unless given."""
+    lengths are estimated from the first seconds of cues unless given, their fit to the
+    silhouettes in a thread (the frames do not wait for it)."""
     from mocap_rt.fusion.config import FusionConfig
     from mocap_rt.fusion.tracker import BodyTracker
 
-    return BodyTracker(rig, FusionConfig(fps=fps, bone_lengths=bone_lengths))
+    return BodyTracker(rig, FusionConfig(fps=fps, bone_lengths=bone_lengths), background_calibration=True)
 
 
 def warm_up(rig, fps: float) -> float:

@@ -42,9 +42,10 @@ from mocap_rt.names import JOINT_NAMES
 from nodes.codec import (Decoder, Envelope, MessageError, check_name, decode_array, encode_array,  # noqa: F401
                          encode_fields, get_bytes, get_float, get_float_map, get_int, get_names, get_str, is_int)
 
-SCHEMA_VERSION = 6          # 2: Pose carries the bone lengths of its skeleton; 3: Cues may carry a silhouette;
+SCHEMA_VERSION = 7          # 2: Pose carries the bone lengths of its skeleton; 3: Cues may carry a silhouette;
                             # 4: ... and where the legs meet the shoes; 5: Prediction may carry the offsets
-                            # of the parts' visible centres; 6: ... and the shapes of the visible shoes
+                            # of the parts' visible centres; 6: ... and the shapes of the visible shoes;
+                            # 7: the bone lengths carry where the torso cue lies on the trunk
 KEY_ROOT = "mocap"
 N_JOINTS = len(JOINT_NAMES)
 MAX_BVH_CHANNELS = 4096

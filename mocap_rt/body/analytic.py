@@ -147,11 +147,11 @@ def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swive
     """
     elbow_raise, elbow_down, knee_open = poles[0], poles[1], poles[2]
     n_poles = int(poles[3])
-    trunk, sh_half, upper_len, fore_len, hip_half, thigh, shank, foot_len = lengths
+    trunk, sh_half, upper_len, fore_len, hip_half, thigh, shank, foot_len, torso_cue_up = lengths
     right = axes[:, 0].copy()
     forward = axes[:, 1].copy()
     up = axes[:, 2].copy()
-    torso = cues[C_TORSO]
+    torso = cues[C_TORSO] - up * torso_cue_up
     pelvis = torso - up * (trunk / 2)
     neck = torso + up * (trunk / 2)
     for j in range(4):  # pelvis, torso, neck, head
@@ -228,14 +228,15 @@ _LIMB_JOINTS = np.array([[J[f"{n}_{s}"] for n in ("shoulder", "elbow", "wrist", 
 
 def limb_args(model: BodyModel, config: AnalyticConfig,
               elbow_pole_search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The arrays ``_analytic`` takes: lengths (8,) metres (trunk, shoulder half width,
-    upper arm, forearm + hand, hip half width, thigh, shank, foot), poles (6,) (elbow
+    """The arrays ``_analytic`` takes: lengths (9,) metres (trunk, shoulder half width,
+    upper arm, forearm + hand, hip half width, thigh, shank, foot, the torso cue above the
+    torso joint), poles (6,) (elbow
     raise, elbow down, knee open radians; elbow pole candidates, 0 without
     ``elbow_pole_search``; twist cost; turn cost), arm_lim (2, 3, 2) radians (the shoulders' limits,
     left then right) and foot_rest (3,) (the foot's rest direction, body frame)."""
     L = model.lengths
     lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
-                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m])
+                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m, L.torso_cue_up_m])
     poles = np.array([np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
                       np.radians(config.knee_open_deg),
                       float(config.elbow_pole_candidates) if elbow_pole_search else 0.0, config.elbow_twist_cost,

@@ -37,10 +37,11 @@ from numba import njit
 from mocap_rt.body.analytic import _LIMB_JOINTS, NO_VIEWS, AnalyticConfig, _analytic, _angles_from_frames, limb_args
 from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, N_FOOT_COLS, foot_axis_cost
 from mocap_rt.body.kinematics import fk_kernel
-from mocap_rt.body.limb_geometry import _cross, _rot_about, joint_violation
+from mocap_rt.body.limb_geometry import _cross, _nunit, _rot_about, joint_violation
 from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SilhouetteTargets, body_capsules, capsules_cost, \
     pose_points
 from mocap_rt.body.skeleton import BodyModel
+from mocap_rt.names import C_HEAD, C_TORSO
 from mocap_rt.studio.body_map import POINT_NAMES
 
 
@@ -59,6 +60,10 @@ class FitConfig:
     swivel_prior_cost: float = 0.1     # per degree away from the default pole
     foot_axis_weight: float = 1.0      # per cm^2 of shoe axis off the measured blob axes (body.foot_axis)
     elbow_silhouette: bool = True      # each arm's elbow pole chosen with the elbow on the silhouettes (module doc)
+    torso_search_m: float = 0.04       # fit_torso (body.calibrate): the torso point moved within +- this forward and up
+    torso_step_m: float = 0.02
+    torso_refine: int = 1              # then halve the step this many times around the best
+    torso_shift_cost: float = 0.1      # per cm the torso point moved from its cue
 
 
 @njit(cache=True, nogil=True)
@@ -154,6 +159,57 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
                 out_terms[0], out_terms[1], out_terms[2], out_terms[3] = cost, viol, sil, foot
 
 
+@njit(cache=True, nogil=True)
+def _fit_torso(cues, axes0, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
+               lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w, n_steps, step, n_refine,
+               out_torso, out_axes):
+    """The torso point moved forward then up (``axes0``'s columns; the trunk's up axis turned
+    to keep pointing at the head cue) by k * ``step`` (0 < |k| <= n_steps), then ``n_refine``
+    halvings around the best, at the cost of ``_fit``'s limit and silhouette terms + w[1] per cm
+    moved; writes the best torso point (3,) and axes (3, 3) and returns its cost."""
+    nj = parents.shape[0]
+    R = np.empty((nj, 3, 3))
+    ang = np.empty((nj, 3))
+    pos = np.empty((nj, 3))
+    rot = np.empty((nj, 3, 3))
+    points = np.empty((len(POINT_NAMES), 3))
+    A = np.empty((N_CAPSULES, 3))
+    B = np.empty((N_CAPSULES, 3))
+    c = cues.copy()
+    axc = np.empty((3, 3))
+    torso0 = cues[C_TORSO].copy()
+    right0 = axes0[:, 0].copy()
+    shift = np.zeros(2)
+    best = np.inf
+    for it in range(n_refine + 1):
+        st = step * 0.5 ** it
+        n = n_steps if it == 0 else 1
+        for d in range(2):
+            start = shift[d]
+            for k in range(-n, n + 1):
+                if k == 0 and best < np.inf:      # the current point, scored already
+                    continue
+                trial = shift.copy()
+                trial[d] = start + k * st
+                for i in range(3):
+                    c[C_TORSO, i] = torso0[i] + trial[0] * axes0[i, 1] + trial[1] * axes0[i, 2]
+                up = _nunit(cues[C_HEAD] - c[C_TORSO], axes0[:, 2])
+                r = _nunit(right0 - up * (right0 @ up), right0)
+                fw = _cross(up, r)
+                for i in range(3):
+                    axc[i, 0], axc[i, 1], axc[i, 2] = r[i], fw[i], up[i]
+                viol, sil, _ = _evaluate(c, axc, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
+                                         offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
+                                         outline, n_outline, _NO_FEET, w[0], 0.0, R, ang, pos, rot, points, A, B)
+                cost = viol + w[0] * sil + w[1] * 100.0 * np.sqrt(trial[0] ** 2 + trial[1] ** 2)
+                if cost < best:
+                    best = cost
+                    shift[:] = trial
+                    out_torso[:] = c[C_TORSO]
+                    out_axes[:, :] = axc
+    return best
+
+
 @dataclass(frozen=True)
 class FitResult:
     """axes (3, 3) columns right, forward, up; swivel (4,) radians (arm_l, arm_r, leg_l,
@@ -220,6 +276,22 @@ class BodyFitter:
              c.pan_refine if pan_refine is None else pan_refine, n_sw, np.radians(c.swivel_step_deg), out_axes, out_sw,
              terms)
         return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]), float(terms[3]))
+
+    def fit_torso(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray,
+                  targets: SilhouetteTargets) -> tuple[np.ndarray, np.ndarray, float]:
+        """The torso point (3,) and body axes (3, 3) that fit ``targets`` best near the torso
+        cue, the trunk's up axis kept on the head cue (``_fit_torso``), and their cost (limit
+        violation + silhouette + ``torso_shift_cost``); cues (6, 3) all finite, ``axes`` and
+        ``swivel`` as ``fit`` chose them. What ``body.calibrate`` scores a subject's
+        proportions with."""
+        c = self.config
+        n = int(round(c.torso_search_m / c.torso_step_m)) if c.torso_step_m > 0 else 0
+        torso, out_axes = np.empty(3), np.empty((3, 3))
+        cost = _fit_torso(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64),
+                          np.asarray(swivel, np.float64), *self._model_args, *targets.args(),
+                          np.array([c.silhouette_weight, c.torso_shift_cost]), n, c.torso_step_m, c.torso_refine,
+                          torso, out_axes)
+        return torso, out_axes, float(cost)
 
     def elbow_views(self, targets: SilhouetteTargets | None) -> tuple:
         """``analytic_pose``'s (views, w_elbow) that measure the elbows on ``targets`` as this

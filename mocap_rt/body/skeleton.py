@@ -48,6 +48,9 @@ PARENTS: tuple[int, ...] = (
 END_EFFECTORS: tuple[str, ...] = ("head", "hand_l", "hand_r", "foot_l", "foot_r")
 
 
+_SIGNED = {"torso_cue_up_m"}     # BoneLengths' offsets that may be <= 0
+
+
 @dataclass(frozen=True)
 class BoneLengths:
     """Per-subject segment lengths, metres (``foot_pitch_deg`` in degrees).
@@ -58,6 +61,8 @@ class BoneLengths:
     upper_arm_m, forearm_m, hand_m : shoulder -> elbow -> wrist -> hand centre.
     thigh_m, shank_m : hip -> knee -> ankle.
     foot_m : ankle -> foot centre; ``foot_pitch_deg`` its angle below the horizontal at rest.
+    torso_cue_up_m : how far the torso cue (the trunk's visible centre) lies above the torso
+        joint along the trunk (signed; ``body.calibrate`` fits it to the silhouettes).
     """
 
     trunk_m: float = 0.50
@@ -71,11 +76,12 @@ class BoneLengths:
     shank_m: float = 0.42
     foot_m: float = 0.09
     foot_pitch_deg: float = 30.0
+    torso_cue_up_m: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if not np.isfinite(v) or (f.name.endswith("_m") and v <= 0):
+            if not np.isfinite(v) or (f.name.endswith("_m") and f.name not in _SIGNED and v <= 0):
                 raise ValueError(f"bone length {f.name} must be finite and > 0, got {v}")
 
     def scaled(self, factor: float) -> "BoneLengths":

@@ -36,6 +36,7 @@ class FusionConfig:
     ik: str = "analytic"                   # "analytic" or "ccd" (analytic + CCD refinement)
     bone_lengths: BoneLengths | None = None
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
+    fit_bone_lengths: bool = True          # ... their proportions fitted to the silhouettes (body.calibrate)
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
     silhouettes: bool = True               # fit the body to the cameras' silhouettes when the cues carry them
     visible_offsets: bool = True           # predictions carry where the head's and hands' visible centres lie

@@ -28,20 +28,28 @@ Settings: ``FusionConfig`` (``fusion.config``).
 
 Bone lengths: ``FusionConfig.bone_lengths`` if given; else a default adult until
 ``calibration_s`` of cues have been seen, then ``estimate_bone_lengths`` of them
-(``tracker.calibrated`` turns True and ``bvh_skeleton`` changes once).
+(``tracker.calibrated`` turns True and ``bvh_skeleton`` changes), then with
+``fit_bone_lengths`` their proportions fitted to the silhouettes of those seconds
+(``body.calibrate``; ``bvh_skeleton`` changes again). That fit takes 1-3 s of CPU: with
+``background_calibration`` (the service) it runs in a thread and the frames go on with the
+estimate until it is done; else (offline) in the frame that calibrates.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Mapping
+from concurrent.futures import Future
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
 from mocap_rt.body.analytic import analytic_pose, body_axes, pan_angle, refine_pan, refine_swivel
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
+from mocap_rt.body.calibrate import fit_bone_lengths
 from mocap_rt.body.ccd import solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
 from mocap_rt.body.fit import BodyFitter
@@ -74,14 +82,25 @@ _NO_CUES = np.zeros(N_CUES, dtype=bool)
 _HIPS = [J["hip_l"], J["hip_r"]]
 _FEET_ALT = ALTERNATIVES.index("feet")
 _MIRROR_ALT = ALTERNATIVES.index("mirror")
+CALIB_EVERY = 2      # every this many calibration frames one keeps its silhouettes (body.calibrate)
+
+
+def _run_into(job, future: Future) -> None:
+    """Run ``job()`` into ``future`` (a daemon thread's body: a node that stops does not wait)."""
+    try:
+        future.set_result(job())
+    except BaseException as e:      # noqa: BLE001 - handed to the thread that takes the result
+        future.set_exception(e)
 
 
 class BodyTracker:
     """Stateful fusion for one rig (see the module doc). Not thread-safe."""
 
-    def __init__(self, rig: Rig, config: FusionConfig = FusionConfig()) -> None:
+    def __init__(self, rig: Rig, config: FusionConfig = FusionConfig(), background_calibration: bool = False) -> None:
         self.rig = rig
         self.config = config
+        self._background = background_calibration   # fit the lengths in a thread (the service: no stall)
+        self._fitting: Future | None = None
         self.cameras = tuple(rig.cameras)
         self._names = list(rig.names)
         self._index = {n: i for i, n in enumerate(self._names)}
@@ -93,6 +112,7 @@ class BodyTracker:
         self.filter = CueFilter(N_CUES, config.filter)
         self._calib: list[np.ndarray] = []
         self._calib_axes: list[np.ndarray] = []
+        self._calib_views: list[tuple] = []
         self.calibrated = config.bone_lengths is not None
         self._set_lengths(config.bone_lengths or BoneLengths())
         self._right: np.ndarray | None = None
@@ -113,6 +133,7 @@ class BodyTracker:
         self.model_full = body_model(lengths, "full")
         self._bvh = bvh_skeleton(self.model)
         self._rest_cues = self.model.rest_positions()[list(CUE_JOINT_INDEX)]
+        self._rest_cues[C_TORSO, 2] += lengths.torso_cue_up_m      # the cue, not the joint (rest: Z up)
         self._fitter = BodyFitter(self.model, self.config.analytic, self.config.fit)
 
     @property
@@ -214,24 +235,55 @@ class BodyTracker:
             self._calibrate()
         return self.calibrated
 
-    def _maybe_calibrate(self, X: np.ndarray, axes: np.ndarray | None) -> None:
+    def _maybe_calibrate(self, X: np.ndarray, axes: np.ndarray | None, cues_ik: np.ndarray | None = None,
+                         targets: SilhouetteTargets | None = None) -> None:
+        """Keep a frame's measured cues X (6, 3) and axes for the bone lengths, and every
+        ``CALIB_EVERY``-th frame its IK cues and silhouettes (``body.calibrate``); calibrate
+        when ``calibration_s`` of them are in."""
         if self.calibrated:
             return
         if axes is not None:
             self._calib.append(X.copy())
             self._calib_axes.append(axes)
+            if targets is not None and targets.n_views > 0 and len(self._calib) % CALIB_EVERY == 0:
+                self._calib_views.append((cues_ik, axes, targets))
         if len(self._calib) >= self.config.calibration_s * self.config.fps:
             self._calibrate()
 
     def _calibrate(self) -> None:
         est = estimate_bone_lengths(np.array(self._calib), BoneLengths(), np.array(self._calib_axes))
+        views = list(self._calib_views)
         self._calib.clear()
         self._calib_axes.clear()
+        self._calib_views.clear()
         if est is None:
             return
         log.info("bone lengths estimated from the cues: %s", est)
         self._set_lengths(est)
         self.calibrated = True
+        if not (self.config.fit_bone_lengths and views):
+            return
+        job = partial(fit_bone_lengths, est, views, self.config.analytic, self.config.fit)
+        if not self._background:
+            self._take_fitted(job())
+            return
+        self._fitting = Future()
+        threading.Thread(target=_run_into, args=(job, self._fitting), name="mocap-calibrate", daemon=True).start()
+
+    def _take_fitted(self, lengths: BoneLengths) -> None:
+        log.info("bone lengths fitted to the silhouettes: %s", lengths)
+        self._set_lengths(lengths)
+
+    def _poll_fitted(self) -> None:
+        """Take the background fit's lengths once it is done (a failed fit keeps the estimate)."""
+        job = self._fitting
+        if job is None or not job.done():
+            return
+        self._fitting = None
+        try:
+            self._take_fitted(job.result())
+        except Exception:       # noqa: BLE001 - the estimate is a body; a bad fit must not stop fusion
+            log.exception("fitting the bone lengths to the silhouettes failed; the estimate stays")
 
     # ------------------------------------------------------------------ API
     def step(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:
@@ -243,6 +295,7 @@ class BodyTracker:
         frames decided. ``identify_frame`` must follow before the next frame (the service
         publishes the pose in between: the identity is off the latency path)."""
         t0 = time.perf_counter()
+        self._poll_fitted()
         timings: dict[str, float] = {}
         t_s = frame / self.config.fps
         uv, w = cue_pixels(cues, self._index, len(self.cameras), self.config.min_confidence)
@@ -343,7 +396,7 @@ class BodyTracker:
                 root, angles, joints, axes = self._solve_and_keep(cues_ik, targets,
                                                                   None if feet is None else swap_pairs(feet, k))
                 result = self._relabelled(result, k, cues_ik, (root, angles, joints, axes, self._swivel.copy()))
-            self._maybe_calibrate(X, axes)      # the bone-length sample, with the labels settled
+            self._maybe_calibrate(X, axes, cues_ik, targets)      # the bone-length sample, with the labels settled
         ms = (time.perf_counter() - t0) * 1e3
         result.timings_ms["identify"] = result.timings_ms.get("identify", 0.0) + ms
         result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + ms

@@ -10,8 +10,8 @@ from mocap_rt.body.ccd import CcdConfig, solve_ccd
 from mocap_rt.body.ik_problem import chain_weights
 from mocap_rt.body.jacobian import JacobianConfig, solve_jacobian
 from mocap_rt.body.kinematics import euler_xyz_matrix, forward_kinematics
-from mocap_rt.body.skeleton import END_EFFECTORS, J, body_model
-from mocap_rt.names import CUE_JOINT_INDEX
+from mocap_rt.body.skeleton import END_EFFECTORS, J, BoneLengths, body_model
+from mocap_rt.names import C_TORSO, CUE_JOINT_INDEX
 
 EFF = np.array([J[n] for n in END_EFFECTORS])
 
@@ -148,6 +148,21 @@ def test_analytic_ik_reaches_reachable_cues_exactly():
         np.testing.assert_allclose(P2[list(CUE_JOINT_INDEX)], cues, atol=1e-9)
         np.testing.assert_allclose(P2[J["pelvis"]], root, atol=1e-9)
         assert np.all(a2[~model.dof] == 0)
+
+
+def test_analytic_ik_puts_the_torso_joint_below_a_raised_torso_cue():
+    L = replace(BoneLengths(), torso_cue_up_m=0.03)
+    model = body_model(L, "paper")
+    rng = np.random.default_rng(9)
+    a = _paper_pose(model, rng)
+    P, R = forward_kinematics(model, np.array([0.2, 0.1, 1.0]), a)
+    cues = P[list(CUE_JOINT_INDEX)]
+    cues[C_TORSO] = P[J["torso"]] + 0.03 * R[0][:, 2]     # the cue 3 cm up the trunk
+    r2, a2 = analytic_pose(model, cues, R[0])
+    P2 = forward_kinematics(model, r2, a2)[0]
+    np.testing.assert_allclose(P2[J["torso"]], P[J["torso"]], atol=1e-9)
+    np.testing.assert_allclose(P2[J["pelvis"]], P[J["pelvis"]], atol=1e-9)
+    np.testing.assert_allclose(P2[list(CUE_JOINT_INDEX)][:5], cues[:5], atol=1e-9)
 
 
 def test_analytic_ik_points_at_unreachable_goals_fully_stretched():

@@ -1,5 +1,7 @@
 """Body model: Euler/quaternion conversions, forward kinematics, frames, bone lengths."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -107,10 +109,11 @@ def test_limits_are_mirrored_and_contain_rest():
 
 
 def test_bone_lengths_toml_round_trip_and_errors(tmp_path):
-    L = BoneLengths().scaled(1.1)
+    L = replace(BoneLengths().scaled(1.1), torso_cue_up_m=-0.02)      # the cue's height may be below the joint
     path = tmp_path / "bones.toml"
     write_bone_lengths(L, path)
     assert read_bone_lengths(path) == L
+    assert BoneLengths.from_array(L.as_array()) == L
     bad = tmp_path / "bad.toml"
     bad.write_text("[bones]\nthigh_m = 0.4\nwing_m = 1.0\n")
     with pytest.raises(ValueError, match="bad.toml.*wing_m"):

@@ -17,7 +17,7 @@ def record(a: np.ndarray, dtype: str) -> dict:
 
 
 def envelope(t: str, body: dict) -> bytes:
-    return msgpack.packb({"v": 6, "t": t, "b": body}, use_bin_type=True)
+    return msgpack.packb({"v": 7, "t": t, "b": body}, use_bin_type=True)
 
 
 RNG = np.random.default_rng(15)
@@ -29,8 +29,8 @@ CONF = np.array([1.0, 0.5, 0.0, 1.0, 0.9, 0.3])
 MASK = RNG.random((5, 11)) > 0.5
 
 
-def test_schema_version_is_6():
-    assert SCHEMA_VERSION == 6
+def test_schema_version_is_7():
+    assert SCHEMA_VERSION == 7
 
 
 LEG = np.array([[101.5, 220.25], [np.nan, np.nan]])

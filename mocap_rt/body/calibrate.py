@@ -1,0 +1,112 @@
+"""The subject's proportions fitted to the silhouettes (analysis by synthesis, per subject).
+
+``estimate.estimate_bone_lengths`` scales a default adult by three group factors from what
+the six cues measure; the proportions inside a group stay the default's. People (and the
+suite's skeletons) differ more than that: forearm / upper arm 0.68-0.92, shoulder half-width
+0.10-0.19 m. And the torso cue is the trunk's visible centre, not its joint: 4 cm above it on
+the CMU skeleton, 2 cm below on the Bandai one. A wrong split moves the elbows, shoulders,
+hips and knees by centimetres however well the cues are placed.
+
+``fit_bone_lengths`` chooses them from frames of the calibration window: a coordinate
+search over ``PARAMS`` (the lengths by multiplicative steps, the torso cue's height by
+added ones), each candidate scored by the sum over the frames of ``fit.BodyFitter``'s cost
+(limit violation + silhouette chamfer, at the frame's best pan and swivels, then
+with the torso point moved to where the silhouettes put it: ``BodyFitter.fit_torso``; the
+torso cue is 2-5 cm off in single frames, which would otherwise decide the trunk's split)
++ ``PRIOR_COST`` per frame and per percent a length moved from the estimate. The head's
+distance from the torso cue is what the cues measure, so the neck takes up what the trunk
+or the cue's height changes. Frames the estimate fits badly (cost > ``FRAME_COST_MAX``: a
+wrong heading or identity in the first seconds) are left out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from mocap_rt.body.analytic import AnalyticConfig
+from mocap_rt.body.fit import BodyFitter, FitConfig
+from mocap_rt.body.silhouette import SilhouetteTargets
+from mocap_rt.body.skeleton import BoneLengths, body_model
+
+# the lengths searched; the torso cue's height and the trunk with the neck (module doc)
+PARAMS = ("torso_cue_up_m", "trunk_m", "shoulder_half_width_m", "upper_arm_m", "forearm_m", "hip_half_width_m",
+          "thigh_m", "shank_m")
+STEPS = (0.84, 0.92, 1.08, 1.19)            # the first sweeps' factors
+FINE_STEPS = (0.96, 1.04)                   # the last sweep's
+CUE_STEPS_M = (-0.04, -0.02, 0.02, 0.04)    # the torso cue's height, added
+FINE_CUE_STEPS_M = (-0.01, 0.01)
+MAX_CUE_UP_M = 0.08
+MAX_FACTOR = 1.6                            # no length leaves [estimate / this, estimate * this]
+MIN_NECK_M = 0.05
+FRAME_COST_MAX = 12.0                       # a frame the estimate fits worse than this is left out
+MIN_FRAMES = 5                              # fewer frames left: the estimate stays
+PRIOR_COST = 0.01                           # per frame, per % a length moved (per cm of the cue's height)
+
+
+def _with(lengths: BoneLengths, name: str, value: float) -> BoneLengths | None:
+    """``lengths`` with ``name`` set to ``value``, the neck keeping the head where it was; None
+    when the neck would be shorter than ``MIN_NECK_M``."""
+    if name == "torso_cue_up_m":
+        neck = lengths.neck_head_m + (value - lengths.torso_cue_up_m)
+    elif name == "trunk_m":
+        neck = lengths.neck_head_m + (lengths.trunk_m - value) / 2
+    else:
+        return replace(lengths, **{name: value})
+    return None if neck < MIN_NECK_M else replace(lengths, **{name: value, "neck_head_m": neck})
+
+
+def frame_costs(lengths: BoneLengths, frames: Sequence[tuple], analytic: AnalyticConfig = AnalyticConfig(),
+                fit: FitConfig = FitConfig()) -> np.ndarray:
+    """Each frame's cost (module doc) for the body of ``lengths``; ``frames`` as
+    ``fit_bone_lengths`` takes them."""
+    fitter = BodyFitter(body_model(lengths, "paper"), analytic, fit)
+    out = np.empty(len(frames))
+    for i, (cues, axes, targets) in enumerate(frames):
+        r = fitter.fit(cues, axes, None, targets)
+        out[i] = fitter.fit_torso(cues, r.axes, r.swivel, targets)[2]
+    return out
+
+
+def _prior(lengths: BoneLengths, estimate: BoneLengths) -> float:
+    """Percent the lengths moved from ``estimate`` (cm for the torso cue's height)."""
+    p = 100.0 * abs(lengths.torso_cue_up_m - estimate.torso_cue_up_m)
+    for name in PARAMS[1:]:
+        p += 100.0 * abs(np.log(getattr(lengths, name) / getattr(estimate, name)))
+    return p
+
+
+def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: AnalyticConfig = AnalyticConfig(),
+                     fit: FitConfig = FitConfig(), sweeps: int = 2) -> BoneLengths:
+    """``estimate`` with ``PARAMS`` fitted to ``frames`` (module doc): ``sweeps`` coordinate
+    sweeps over ``STEPS`` (``CUE_STEPS_M``), then one over ``FINE_STEPS``
+    (``FINE_CUE_STEPS_M``). ``frames``: (cues (6, 3) metres, world; body axes (3, 3);
+    ``SilhouetteTargets``). Frames with a missing
+    cue or no view are skipped; with fewer than ``MIN_FRAMES`` usable, ``estimate`` is returned."""
+    frames = [f for f in frames if np.isfinite(f[0]).all() and isinstance(f[2], SilhouetteTargets)
+              and f[2].n_views > 0]
+    if len(frames) < MIN_FRAMES:
+        return estimate
+    costs = frame_costs(estimate, frames, analytic, fit)
+    frames = [f for f, c in zip(frames, costs) if c <= FRAME_COST_MAX]
+    if len(frames) < MIN_FRAMES:
+        return estimate
+    w_prior = PRIOR_COST * len(frames)
+    lengths, best = estimate, float(costs[costs <= FRAME_COST_MAX].sum())
+    for fine in [False] * sweeps + [True]:
+        for name in PARAMS:
+            v0, e = getattr(lengths, name), getattr(estimate, name)
+            if name == "torso_cue_up_m":
+                values = [v0 + d for d in (FINE_CUE_STEPS_M if fine else CUE_STEPS_M) if abs(v0 + d) <= MAX_CUE_UP_M]
+            else:
+                values = [v0 * s for s in (FINE_STEPS if fine else STEPS) if e / MAX_FACTOR <= v0 * s <= e * MAX_FACTOR]
+            for v in values:
+                cand = _with(lengths, name, v)
+                if cand is None:
+                    continue
+                cost = float(frame_costs(cand, frames, analytic, fit).sum()) + w_prior * _prior(cand, estimate)
+                if cost < best:
+                    best, lengths = cost, cand
+    return lengths

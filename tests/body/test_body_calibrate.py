@@ -1,0 +1,108 @@
+"""The subject's proportions fitted to rendered silhouettes (``body.calibrate``)."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from mocap_rt.body.analytic import analytic_pose
+from mocap_rt.body.calibrate import fit_bone_lengths
+from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.silhouette import SilhouetteTargets, pose_points
+from mocap_rt.body.skeleton import BoneLengths, J, body_model
+from mocap_rt.cues import CameraCues, CompactSilhouette
+from mocap_rt.geometry.rig import ring_rig
+from mocap_rt.names import C_HEAD, C_TORSO, CUE_JOINT_INDEX, N_CUES
+from mocap_rt.studio.body_map import POINT_NAMES
+from mocap_rt.studio.body_shape import body_primitives
+from mocap_rt.studio.render import RenderConfig, StudioRenderer
+
+# a subject far from the default adult's proportions (short forearms, narrow shoulders, as
+# the CMU and Bandai skeletons are), and where its trunk shows its centre
+TRUE = BoneLengths(trunk_m=0.42, neck_head_m=0.24, shoulder_half_width_m=0.13, upper_arm_m=0.29, forearm_m=0.20,
+                   hand_m=0.08, hip_half_width_m=0.08, thigh_m=0.43, shank_m=0.42, foot_m=0.09,
+                   torso_cue_up_m=0.025)
+ELBOWS = [J["elbow_l"], J["elbow_r"]]
+SHOULDERS = [J["shoulder_l"], J["shoulder_r"]]
+
+
+def _frames(rig, lengths):
+    """Eight poses of the true body (arms bent, raised, forward; the body turning), each with its
+    cues (6, 3), axes (3, 3), rendered silhouettes and true joints (J, 3)."""
+    model = body_model(lengths, "paper")
+    ren = StudioRenderer(rig, config=RenderConfig(noise_sigma_levels=0.0))
+    rng = np.random.default_rng(3)
+    frames = []
+    for k in range(8):
+        yaw = np.radians(40.0 * k)
+        R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])
+        torso = np.array([0.1 * k - 0.3, 0.05 * k, 1.05])
+        up = R[:, 2]
+        head = torso + up * (lengths.trunk_m / 2 + lengths.neck_head_m - lengths.torso_cue_up_m)
+        rest = model.rest_positions()
+        cues = np.empty((N_CUES, 3))
+        for c, j in enumerate(CUE_JOINT_INDEX):
+            cues[c] = torso + R @ (rest[j] - rest[J["torso"]])
+        cues[C_HEAD] = head
+        cues[C_TORSO] = torso
+        for s, sx in ((1, -1.0), (2, 1.0)):       # hands: forward, out, up, bent at the elbow
+            cues[s] = torso + R @ np.array([sx * rng.uniform(0.15, 0.45), rng.uniform(0.1, 0.4),
+                                            rng.uniform(-0.25, 0.35)])
+        root, angles = analytic_pose(model, cues, R)
+        pos, rot = forward_kinematics(model, root, angles)
+        pts = np.empty((len(POINT_NAMES), 3))
+        pose_points(pos, rot, np.radians(lengths.foot_pitch_deg), pts)
+        prims = body_primitives(pts)
+        cams = {}
+        for c, cam in enumerate(rig.cameras):
+            m = ren.render(c, prims, k).mask
+            ys, xs = np.nonzero(m)
+            box = (xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+            sil = CompactSilhouette.from_box_mask(m[box[1]:box[1] + box[3], box[0]:box[0] + box[2]], box)
+            cams[cam.name] = CameraCues(cam.name, k, np.full((6, 2), np.nan), np.full((6, 2, 2), np.nan),
+                                        np.zeros(6), np.zeros(6), box, {}, sil)
+        cues = pos[list(CUE_JOINT_INDEX)].copy()       # the hands where the arms reach
+        cues[C_TORSO] = torso
+        frames.append((cues, R, SilhouetteTargets.from_cues(rig.cameras, cams), pos))
+    return frames
+
+
+def _joint_error_mm(lengths, frames, joints):
+    model = body_model(lengths, "paper")
+    err = []
+    for cues, axes, _, truth in frames:
+        root, angles = analytic_pose(model, cues, axes)
+        pos = forward_kinematics(model, root, angles)[0]
+        err.append(np.linalg.norm(pos[joints] - truth[joints], axis=1))
+    return 1000 * float(np.mean(err))
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return _frames(ring_rig(6, size=(640, 480)), TRUE)
+
+
+def test_the_fit_finds_the_subjects_proportions_from_the_default_adults(frames):
+    # what the cues alone give: the default proportions, the head at its measured distance
+    start = replace(BoneLengths().scaled(0.95), torso_cue_up_m=0.0)
+    start = replace(start, neck_head_m=TRUE.trunk_m / 2 + TRUE.neck_head_m - TRUE.torso_cue_up_m - start.trunk_m / 2)
+    fitted = fit_bone_lengths(start, [f[:3] for f in frames])
+    for name in ("shoulder_half_width_m", "forearm_m", "torso_cue_up_m"):     # what the cues cannot measure
+        assert abs(getattr(fitted, name) - getattr(TRUE, name)) < abs(getattr(start, name) - getattr(TRUE, name))
+    e0, e1 = (_joint_error_mm(L, frames, ELBOWS + SHOULDERS) for L in (start, fitted))
+    assert e1 < 0.5 * e0, (e0, e1)          # 92 -> 40 mm
+    # the head stays where the cues put it
+    for L in (start, fitted):
+        assert L.trunk_m / 2 + L.neck_head_m - L.torso_cue_up_m == pytest.approx(
+            TRUE.trunk_m / 2 + TRUE.neck_head_m - TRUE.torso_cue_up_m)
+
+
+def test_the_true_arms_stay(frames):
+    fitted = fit_bone_lengths(TRUE, [f[:3] for f in frames])
+    assert _joint_error_mm(fitted, frames, ELBOWS + SHOULDERS) < 5.0
+
+
+def test_without_silhouettes_the_lengths_stay():
+    assert fit_bone_lengths(TRUE, []) == TRUE
+    no_views = SilhouetteTargets(ring_rig(2).cameras)
+    assert fit_bone_lengths(TRUE, [(np.zeros((N_CUES, 3)), np.eye(3), no_views)] * 6) == TRUE
