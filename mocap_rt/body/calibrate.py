@@ -21,6 +21,9 @@ wrong heading or identity in the first seconds) are left out.
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+import threading
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -110,3 +113,70 @@ def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: A
                 if cost < best:
                     best, lengths = cost, cand
     return lengths
+
+
+def _fit_in_child(jobs, send) -> None:
+    """``BackgroundFit``'s process: ``fit_bone_lengths(*args)`` of the args received on ``jobs``,
+    its result (True, lengths) or failure (False, message) sent on ``send``."""
+    try:
+        send.send((True, fit_bone_lengths(*jobs.recv())))
+    except Exception as e:      # noqa: BLE001 - reported to the parent, which keeps its estimate
+        send.send((False, f"{type(e).__name__}: {e}"))
+    finally:
+        send.close()
+
+
+class BackgroundFit:
+    """``fit_bone_lengths(*args)`` in a spawned process at the idle CPU priority (the
+    service's fusion: 2-4 s of CPU that must neither stall its frames nor share their
+    interpreter lock; a thread doubled the service's latency p99). The frames go to the process
+    from a thread (a pipe blocks until the new interpreter reads them, ~1 s). ``done()`` polls,
+    ``result()`` gives the lengths or raises ``RuntimeError``. The process is a daemon: a node
+    that stops does not wait for it."""
+
+    def __init__(self, *args) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._recv, send = ctx.Pipe(duplex=False)
+        jobs, self._jobs = ctx.Pipe(duplex=False)
+        self._proc = ctx.Process(target=_fit_in_child, args=(jobs, send), name="mocap-calibrate", daemon=True)
+        self._proc.start()
+        try:        # Linux: the CPU only when nothing else wants it; else the lowest priority
+            os.sched_setscheduler(self._proc.pid, os.SCHED_IDLE, os.sched_param(0))
+        except (AttributeError, OSError):
+            try:
+                os.setpriority(os.PRIO_PROCESS, self._proc.pid, 19)
+            except (AttributeError, OSError):
+                pass
+        send.close()
+        jobs.close()
+        threading.Thread(target=self._send, args=(args,), name="mocap-calibrate-send", daemon=True).start()
+        self._answer: tuple | None = None       # (ok, lengths or message), once received
+
+    def _send(self, args: tuple) -> None:
+        try:
+            self._jobs.send(args)
+        except OSError:         # the process ended first: result() says so
+            pass
+        finally:
+            self._jobs.close()
+
+    def done(self) -> bool:
+        return self._answer is not None or self._recv.poll() or not self._proc.is_alive()
+
+    def result(self, timeout: float | None = None) -> BoneLengths:
+        """The fitted lengths, waiting up to ``timeout`` s (None: until done); RuntimeError when
+        the fit failed, the process ended without a result or the time ran out."""
+        if self._answer is None:
+            try:
+                if not self._recv.poll(timeout):
+                    raise RuntimeError(f"the bone lengths' fit gave no result within {timeout} s")
+                self._answer = self._recv.recv()
+            except (EOFError, OSError) as e:
+                raise RuntimeError("the bone lengths' fit ended without a result (exit code "
+                                   f"{self._proc.exitcode})") from e
+            finally:
+                self._proc.join(0.5)
+        ok, value = self._answer
+        if not ok:
+            raise RuntimeError(f"the bone lengths' fit failed: {value}")
+        return value

@@ -30,26 +30,24 @@ Bone lengths: ``FusionConfig.bone_lengths`` if given; else a default adult until
 ``calibration_s`` of cues have been seen, then ``estimate_bone_lengths`` of them
 (``tracker.calibrated`` turns True and ``bvh_skeleton`` changes), then with
 ``fit_bone_lengths`` their proportions fitted to the silhouettes of those seconds
-(``body.calibrate``; ``bvh_skeleton`` changes again). That fit takes 1-3 s of CPU: with
-``background_calibration`` (the service) it runs in a thread and the frames go on with the
-estimate until it is done; else (offline) in the frame that calibrates.
+(``body.calibrate``; ``bvh_skeleton`` changes again). That fit takes 2-4 s of CPU: with
+``background_calibration`` (the service) it runs in another process at the lowest priority
+(``calibrate.BackgroundFit``) and the frames go on with the estimate until it is done; else
+(offline) in the frame that calibrates.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Mapping
-from concurrent.futures import Future
 from dataclasses import replace
-from functools import partial
 
 import numpy as np
 
 from mocap_rt.body.analytic import analytic_pose, body_axes, pan_angle, refine_pan, refine_swivel
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
-from mocap_rt.body.calibrate import fit_bone_lengths
+from mocap_rt.body.calibrate import BackgroundFit, fit_bone_lengths
 from mocap_rt.body.ccd import solve_ccd
 from mocap_rt.body.estimate import estimate_bone_lengths
 from mocap_rt.body.fit import BodyFitter
@@ -85,22 +83,14 @@ _MIRROR_ALT = ALTERNATIVES.index("mirror")
 CALIB_EVERY = 2      # every this many calibration frames one keeps its silhouettes (body.calibrate)
 
 
-def _run_into(job, future: Future) -> None:
-    """Run ``job()`` into ``future`` (a daemon thread's body: a node that stops does not wait)."""
-    try:
-        future.set_result(job())
-    except BaseException as e:      # noqa: BLE001 - handed to the thread that takes the result
-        future.set_exception(e)
-
-
 class BodyTracker:
     """Stateful fusion for one rig (see the module doc). Not thread-safe."""
 
     def __init__(self, rig: Rig, config: FusionConfig = FusionConfig(), background_calibration: bool = False) -> None:
         self.rig = rig
         self.config = config
-        self._background = background_calibration   # fit the lengths in a thread (the service: no stall)
-        self._fitting: Future | None = None
+        self._background = background_calibration   # fit the lengths in another process (the service)
+        self._fitting: BackgroundFit | None = None
         self.cameras = tuple(rig.cameras)
         self._names = list(rig.names)
         self._index = {n: i for i, n in enumerate(self._names)}
@@ -263,12 +253,11 @@ class BodyTracker:
         self.calibrated = True
         if not (self.config.fit_bone_lengths and views):
             return
-        job = partial(fit_bone_lengths, est, views, self.config.analytic, self.config.fit)
-        if not self._background:
-            self._take_fitted(job())
-            return
-        self._fitting = Future()
-        threading.Thread(target=_run_into, args=(job, self._fitting), name="mocap-calibrate", daemon=True).start()
+        args = (est, views, self.config.analytic, self.config.fit)
+        if self._background:
+            self._fitting = BackgroundFit(*args)
+        else:
+            self._take_fitted(fit_bone_lengths(*args))
 
     def _take_fitted(self, lengths: BoneLengths) -> None:
         log.info("bone lengths fitted to the silhouettes: %s", lengths)
@@ -281,9 +270,9 @@ class BodyTracker:
             return
         self._fitting = None
         try:
-            self._take_fitted(job.result())
-        except Exception:       # noqa: BLE001 - the estimate is a body; a bad fit must not stop fusion
-            log.exception("fitting the bone lengths to the silhouettes failed; the estimate stays")
+            self._take_fitted(job.result(0.0))
+        except RuntimeError as e:
+            log.error("%s; the estimate stays", e)
 
     # ------------------------------------------------------------------ API
     def step(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:

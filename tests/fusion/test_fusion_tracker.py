@@ -133,7 +133,7 @@ def test_config_errors():
 
 
 def test_the_silhouette_fit_of_the_lengths_runs_in_the_background_and_agrees(backwards_walk_3s):
-    """The service's tracker fits the proportions in a thread: the frame that calibrates takes the
+    """The service's tracker fits the proportions in another process: the frame that calibrates takes the
     cues' estimate at once, a later frame the fitted lengths, the same the offline tracker fits
     in that frame; with them the arms' joints lie nearer the truth than with the estimate."""
     from mocap_rt.fusion.evaluate import truth_camera_cues
@@ -159,7 +159,7 @@ def test_the_silhouette_fit_of_the_lengths_runs_in_the_background_and_agrees(bac
         if at is None and offline.calibrated:
             at = f
             assert live.calibrated and live.lengths == unfitted.lengths != offline.lengths
-            live._fitting.result(timeout=120)     # the thread's fit, done
+            live._fitting.result(timeout=120)     # the other process's fit, done
     assert at is not None and at < rec.n_frames - 1
     assert live.lengths == offline.lengths            # taken by the frame after it was done
     fitted, estimated = (1000 * np.mean(err[id(t)]) for t in (offline, unfitted))
@@ -168,14 +168,15 @@ def test_the_silhouette_fit_of_the_lengths_runs_in_the_background_and_agrees(bac
 
 
 def test_a_failed_background_fit_keeps_the_estimate(caplog):
-    from concurrent.futures import Future
+    from mocap_rt.body.calibrate import BackgroundFit
 
     tracker = BodyTracker(ring_rig(6), FusionConfig(), background_calibration=True)
     before = tracker.lengths
-    tracker._fitting = Future()
-    tracker._poll_fitted()                       # not done yet: nothing happens
-    assert tracker._fitting is not None and tracker.lengths == before
-    tracker._fitting.set_exception(FloatingPointError("diverged"))
+    tracker._fitting = BackgroundFit(before, [("not a frame",)] * 6)       # raises in the child
+    with pytest.raises(RuntimeError, match="fit failed: TypeError"):
+        BackgroundFit(before, [("not a frame",)] * 6).result(timeout=120)
+    while not tracker._fitting.done():
+        tracker._fitting._recv.poll(0.1)
     tracker._poll_fitted()
     assert tracker._fitting is None and tracker.lengths == before
     assert "the estimate stays" in caplog.text
