@@ -92,19 +92,19 @@ def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joint
 
 
 @njit(cache=True, nogil=True)
+def _scratch(nj):
+    """``_evaluate``'s work arrays for a body of nj joints: R, ang, pos, rot, points, A, B."""
+    return (np.empty((nj, 3, 3)), np.empty((nj, 3)), np.empty((nj, 3)), np.empty((nj, 3, 3)),
+            np.empty((len(POINT_NAMES), 3)), np.empty((N_CAPSULES, 3)), np.empty((N_CAPSULES, 3)))
+
+
+@njit(cache=True, nogil=True)
 def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
          lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w, pan_offsets, n_refine, n_sw,
          sw_step, out_axes, out_swivel, out_terms):
     """Coordinate search (see the module doc); writes the best axes (3, 3), swivel (4,)
     and terms (total, violation, silhouette, foot axis) into the ``out_*`` arrays."""
-    nj = parents.shape[0]
-    R = np.empty((nj, 3, 3))
-    ang = np.empty((nj, 3))
-    pos = np.empty((nj, 3))
-    rot = np.empty((nj, 3, 3))
-    points = np.empty((len(POINT_NAMES), 3))
-    A = np.empty((N_CAPSULES, 3))
-    B = np.empty((N_CAPSULES, 3))
+    R, ang, pos, rot, points, A, B = _scratch(parents.shape[0])
     axc = np.empty((3, 3))
     up = axes0[:, 2].copy()
     right0 = axes0[:, 0].copy()
@@ -167,14 +167,7 @@ def _fit_torso(cues, axes0, swivel, lengths, poles, arm_lim, foot_rest, limb_joi
     to keep pointing at the head cue) by k * ``step`` (0 < |k| <= n_steps), then ``n_refine``
     halvings around the best, at the cost of ``_fit``'s limit and silhouette terms + w[1] per cm
     moved; writes the best torso point (3,) and axes (3, 3) and returns its cost."""
-    nj = parents.shape[0]
-    R = np.empty((nj, 3, 3))
-    ang = np.empty((nj, 3))
-    pos = np.empty((nj, 3))
-    rot = np.empty((nj, 3, 3))
-    points = np.empty((len(POINT_NAMES), 3))
-    A = np.empty((N_CAPSULES, 3))
-    B = np.empty((N_CAPSULES, 3))
+    R, ang, pos, rot, points, A, B = _scratch(parents.shape[0])
     c = cues.copy()
     axc = np.empty((3, 3))
     torso0 = cues[C_TORSO].copy()

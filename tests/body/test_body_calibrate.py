@@ -10,12 +10,12 @@ from mocap_rt.body.calibrate import fit_bone_lengths
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, pose_points
 from mocap_rt.body.skeleton import BoneLengths, J, body_model
-from mocap_rt.cues import CameraCues, CompactSilhouette
 from mocap_rt.geometry.rig import ring_rig
 from mocap_rt.names import C_HEAD, C_TORSO, CUE_JOINT_INDEX, N_CUES
 from mocap_rt.studio.body_map import POINT_NAMES
 from mocap_rt.studio.body_shape import body_primitives
 from mocap_rt.studio.render import RenderConfig, StudioRenderer
+from studio_silhouettes import silhouette_cues
 
 # a subject far from the default adult's proportions (short forearms, narrow shoulders, as
 # the CMU and Bandai skeletons are), and where its trunk shows its centre
@@ -52,15 +52,7 @@ def _frames(rig, lengths):
         pos, rot = forward_kinematics(model, root, angles)
         pts = np.empty((len(POINT_NAMES), 3))
         pose_points(pos, rot, np.radians(lengths.foot_pitch_deg), pts)
-        prims = body_primitives(pts)
-        cams = {}
-        for c, cam in enumerate(rig.cameras):
-            m = ren.render(c, prims, k).mask
-            ys, xs = np.nonzero(m)
-            box = (xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
-            sil = CompactSilhouette.from_box_mask(m[box[1]:box[1] + box[3], box[0]:box[0] + box[2]], box)
-            cams[cam.name] = CameraCues(cam.name, k, np.full((6, 2), np.nan), np.full((6, 2, 2), np.nan),
-                                        np.zeros(6), np.zeros(6), box, {}, sil)
+        cams = silhouette_cues(ren, body_primitives(pts), k)
         cues = pos[list(CUE_JOINT_INDEX)].copy()       # the hands where the arms reach
         cues[C_TORSO] = torso
         frames.append((cues, R, SilhouetteTargets.from_cues(rig.cameras, cams), pos))

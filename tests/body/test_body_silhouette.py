@@ -16,6 +16,7 @@ from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES
 from mocap_rt.studio.body_map import POINT_NAMES, body_motion
 from mocap_rt.studio.body_shape import body_primitives
 from mocap_rt.studio.render import RenderConfig, StudioRenderer
+from studio_silhouettes import silhouette_cues
 
 
 @pytest.fixture(scope="module")
@@ -30,19 +31,7 @@ def rendered(walk):
     {frame: {camera: CameraCues with the compact silhouette}}."""
     rig = ring_rig(6, size=(320, 240))
     ren = StudioRenderer(rig, config=RenderConfig(noise_sigma_levels=0.0))
-    out = {}
-    for f in (10, 30):
-        prims = body_primitives(walk.points[f])
-        cues = {}
-        for c, cam in enumerate(rig.cameras):
-            m = ren.render(c, prims, f).mask
-            ys, xs = np.nonzero(m)
-            box = (xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
-            sil = CompactSilhouette.from_box_mask(m[box[1]:box[1] + box[3], box[0]:box[0] + box[2]], box)
-            cues[cam.name] = CameraCues(cam.name, f, np.full((6, 2), np.nan), np.full((6, 2, 2), np.nan),
-                                        np.zeros(6), np.zeros(6), box, {}, sil)
-        out[f] = cues
-    return rig, out
+    return rig, {f: silhouette_cues(ren, body_primitives(walk.points[f]), f) for f in (10, 30)}
 
 
 def test_capsules_are_the_studio_body(walk):
