@@ -10,8 +10,8 @@ hips and knees by centimetres however well the cues are placed.
 ``fit_bone_lengths`` chooses them from frames of the calibration window: a coordinate
 search over ``PARAMS`` (the lengths by multiplicative steps, the torso cue's height by
 added ones), each candidate scored by the sum over the frames of ``fit.BodyFitter``'s cost
-(limit violation + silhouette chamfer, at the frame's best pan and swivels, then
-with the torso point moved to where the silhouettes put it: ``BodyFitter.fit_torso``; the
+(limit violation + silhouette chamfer, at the frame's best pan and swivels, then with the
+torso point moved to where the silhouettes put it: ``BodyFitter.fit_torso``; the
 torso cue is 2-5 cm off in single frames, which would otherwise decide the trunk's split)
 + ``PRIOR_COST`` per frame and per percent a length moved from the estimate. The head's
 distance from the torso cue is what the cues measure, so the neck takes up what the trunk
@@ -86,8 +86,8 @@ def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: A
     """``estimate`` with ``PARAMS`` fitted to ``frames`` (module doc): ``sweeps`` coordinate
     sweeps over ``STEPS`` (``CUE_STEPS_M``), then one over ``FINE_STEPS``
     (``FINE_CUE_STEPS_M``). ``frames``: (cues (6, 3) metres, world; body axes (3, 3);
-    ``SilhouetteTargets``). Frames with a missing
-    cue or no view are skipped; with fewer than ``MIN_FRAMES`` usable, ``estimate`` is returned."""
+    ``SilhouetteTargets``). Frames with a missing cue or no view are skipped; with fewer than
+    ``MIN_FRAMES`` usable, ``estimate`` is returned."""
     frames = [f for f in frames if np.isfinite(f[0]).all() and isinstance(f[2], SilhouetteTargets)
               and f[2].n_views > 0]
     if len(frames) < MIN_FRAMES:
