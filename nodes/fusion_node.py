@@ -62,7 +62,7 @@ class FusionSettings(NodeSettings):
 def make_tracker(rig, fps: float, bone_lengths=None):
     """D's ``BodyTracker`` with its default config at the stream's frame rate; the bone
     lengths are estimated from the first seconds of cues unless given, their fit to the
-    silhouettes in a thread (the frames do not wait for it)."""
+    silhouettes in another process (the frames do not wait for it)."""
     from mocap_rt.fusion.config import FusionConfig
     from mocap_rt.fusion.tracker import BodyTracker
 

@@ -31,7 +31,7 @@ Bone lengths: ``FusionConfig.bone_lengths`` if given; else a default adult until
 (``tracker.calibrated`` turns True and ``bvh_skeleton`` changes), then with
 ``fit_bone_lengths`` their proportions fitted to the silhouettes of those seconds
 (``body.calibrate``; ``bvh_skeleton`` changes again). That fit takes 2-4 s of CPU: with
-``background_calibration`` (the service) it runs in another process at the lowest priority
+``background_calibration`` (the service) it runs in another process at the idle priority
 (``calibrate.BackgroundFit``) and the frames go on with the estimate until it is done; else
 (offline) in the frame that calibrates.
 """
