@@ -27,13 +27,11 @@ head and hands show their centres (``body.visible``).
 Settings: ``FusionConfig`` (``fusion.config``).
 
 Bone lengths: ``FusionConfig.bone_lengths`` if given; else a default adult until
-``calibration_s`` of cues have been seen, then ``estimate_bone_lengths`` of them
-(``tracker.calibrated`` turns True and ``bvh_skeleton`` changes), then with
-``fit_bone_lengths`` their proportions fitted to the silhouettes of those seconds
-(``body.calibrate``; ``bvh_skeleton`` changes again). That fit takes 2-4 s of CPU: with
-``background_calibration`` (the service) it runs in another process at the idle priority
-(``calibrate.BackgroundFit``) and the frames go on with the estimate until it is done; else
-(offline) in the frame that calibrates.
+``calibration_s`` of cues have been seen, then those of ``fusion.calibration.LengthCalibration``
+(``tracker.calibrated`` turns True and ``bvh_skeleton`` changes): the cues' estimate with its
+proportions fitted to the silhouettes of those seconds; with ``background_calibration`` (the
+service) the estimate first, and the fitted lengths (``bvh_skeleton`` changes again) from the
+first frame after the other process's fit is done.
 """
 
 from __future__ import annotations
@@ -47,9 +45,7 @@ import numpy as np
 
 from mocap_rt.body.analytic import analytic_pose, body_axes, pan_angle, refine_pan, refine_swivel
 from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
-from mocap_rt.body.calibrate import BackgroundFit, fit_bone_lengths
 from mocap_rt.body.ccd import solve_ccd
-from mocap_rt.body.estimate import estimate_bone_lengths
 from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.kinematics import forward_kinematics
@@ -57,6 +53,7 @@ from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
 from mocap_rt.body.visible import CUE_CAPSULES, OFFSET_CAPSULES, part_offsets, part_shapes, pose_visible_parts, rig_rays
 from mocap_rt.cues import CameraCues, CuePrediction
+from mocap_rt.fusion.calibration import LengthCalibration
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.filter import CueFilter
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityState, crossed_legs_cm2, decide,
@@ -80,7 +77,6 @@ _NO_CUES = np.zeros(N_CUES, dtype=bool)
 _HIPS = [J["hip_l"], J["hip_r"]]
 _FEET_ALT = ALTERNATIVES.index("feet")
 _MIRROR_ALT = ALTERNATIVES.index("mirror")
-CALIB_EVERY = 2      # every this many calibration frames one keeps its silhouettes (body.calibrate)
 
 
 class BodyTracker:
@@ -89,8 +85,6 @@ class BodyTracker:
     def __init__(self, rig: Rig, config: FusionConfig = FusionConfig(), background_calibration: bool = False) -> None:
         self.rig = rig
         self.config = config
-        self._background = background_calibration   # fit the lengths in another process (the service)
-        self._fitting: BackgroundFit | None = None
         self.cameras = tuple(rig.cameras)
         self._names = list(rig.names)
         self._index = {n: i for i, n in enumerate(self._names)}
@@ -100,9 +94,7 @@ class BodyTracker:
         self._sil_projection = rig_projection(self.cameras)
         self._rays = rig_rays(self.cameras)                 # the visible centres of the predictions
         self.filter = CueFilter(N_CUES, config.filter)
-        self._calib: list[np.ndarray] = []
-        self._calib_axes: list[np.ndarray] = []
-        self._calib_views: list[tuple] = []
+        self.calibration = LengthCalibration(config, background_calibration)
         self.calibrated = config.bone_lengths is not None
         self._set_lengths(config.bone_lengths or BoneLengths())
         self._right: np.ndarray | None = None
@@ -128,7 +120,8 @@ class BodyTracker:
 
     @property
     def bvh_skeleton(self) -> BvhSkeleton:
-        """The BVH hierarchy matching ``FusionResult.bvh_frame`` (changes once, at calibration)."""
+        """The BVH hierarchy matching ``FusionResult.bvh_frame`` (changes at calibration, and again
+        when a background fit hands over its lengths)."""
         return self._bvh
 
     @property
@@ -221,58 +214,26 @@ class BodyTracker:
     def finish_calibration(self) -> bool:
         """Estimate the bone lengths now from the frames seen so far (e.g. a clip shorter
         than ``calibration_s``); True if the lengths are (now) calibrated."""
-        if not self.calibrated and self._calib:
-            self._calibrate()
+        if not self.calibrated:
+            self._calibrated_to(self.calibration.finish())
         return self.calibrated
 
     def _maybe_calibrate(self, X: np.ndarray, axes: np.ndarray | None, cues_ik: np.ndarray | None = None,
                          targets: SilhouetteTargets | None = None) -> None:
-        """Keep a frame's measured cues X (6, 3) and axes for the bone lengths, and every
-        ``CALIB_EVERY``-th frame its IK cues and silhouettes (``body.calibrate``); calibrate
-        when ``calibration_s`` of them are in."""
-        if self.calibrated:
-            return
-        if axes is not None:
-            self._calib.append(X.copy())
-            self._calib_axes.append(axes)
-            if targets is not None and targets.n_views > 0 and len(self._calib) % CALIB_EVERY == 0:
-                self._calib_views.append((cues_ik, axes, targets))
-        if len(self._calib) >= self.config.calibration_s * self.config.fps:
-            self._calibrate()
+        """A frame for the calibration window (``LengthCalibration.add``) until calibrated."""
+        if not self.calibrated:
+            self._calibrated_to(self.calibration.add(X, axes, cues_ik, targets))
 
-    def _calibrate(self) -> None:
-        est = estimate_bone_lengths(np.array(self._calib), BoneLengths(), np.array(self._calib_axes))
-        views = list(self._calib_views)
-        self._calib.clear()
-        self._calib_axes.clear()
-        self._calib_views.clear()
-        if est is None:
-            return
-        log.info("bone lengths estimated from the cues: %s", est)
-        self._set_lengths(est)
-        self.calibrated = True
-        if not (self.config.fit_bone_lengths and views):
-            return
-        args = (est, views, self.config.analytic, self.config.fit)
-        if self._background:
-            self._fitting = BackgroundFit(*args)
-        else:
-            self._take_fitted(fit_bone_lengths(*args))
-
-    def _take_fitted(self, lengths: BoneLengths) -> None:
-        log.info("bone lengths fitted to the silhouettes: %s", lengths)
-        self._set_lengths(lengths)
+    def _calibrated_to(self, lengths: BoneLengths | None) -> None:
+        if lengths is not None:
+            self._set_lengths(lengths)
+            self.calibrated = True
 
     def _poll_fitted(self) -> None:
         """Take the background fit's lengths once it is done (a failed fit keeps the estimate)."""
-        job = self._fitting
-        if job is None or not job.done():
-            return
-        self._fitting = None
-        try:
-            self._take_fitted(job.result(0.0))
-        except RuntimeError as e:
-            log.error("%s; the estimate stays", e)
+        lengths = self.calibration.poll()
+        if lengths is not None:
+            self._set_lengths(lengths)
 
     # ------------------------------------------------------------------ API
     def step(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:

@@ -9,7 +9,7 @@ from mocap_rt.body.estimate import bone_lengths_from_joints
 from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import J, BoneLengths, body_model
-from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CameraCues, CompactSilhouette
+from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CompactSilhouette
 from mocap_rt.geometry.rig import ring_rig
 from mocap_rt.io.bvh import read_bvh
 from mocap_rt.names import CUE_JOINT_INDEX, JOINT_NAMES

@@ -159,7 +159,7 @@ def test_the_silhouette_fit_of_the_lengths_runs_in_the_background_and_agrees(bac
         if at is None and offline.calibrated:
             at = f
             assert live.calibrated and live.lengths == unfitted.lengths != offline.lengths
-            live._fitting.result(timeout=120)     # the other process's fit, done
+            live.calibration.fitting.result(timeout=120)     # the other process's fit, done
     assert at is not None and at < rec.n_frames - 1
     assert live.lengths == offline.lengths            # taken by the frame after it was done
     fitted, estimated = (1000 * np.mean(err[id(t)]) for t in (offline, unfitted))
@@ -172,11 +172,10 @@ def test_a_failed_background_fit_keeps_the_estimate(caplog):
 
     tracker = BodyTracker(ring_rig(6), FusionConfig(), background_calibration=True)
     before = tracker.lengths
-    tracker._fitting = BackgroundFit(before, [("not a frame",)] * 6)       # raises in the child
+    fit = BackgroundFit(before, [("not a frame",)] * 6)       # raises in the child
     with pytest.raises(RuntimeError, match="fit failed: TypeError"):
-        BackgroundFit(before, [("not a frame",)] * 6).result(timeout=120)
-    while not tracker._fitting.done():
-        tracker._fitting._recv.poll(0.1)
+        fit.result(timeout=120)
+    tracker.calibration.fitting = fit
     tracker._poll_fitted()
-    assert tracker._fitting is None and tracker.lengths == before
+    assert tracker.calibration.fitting is None and tracker.lengths == before
     assert "the estimate stays" in caplog.text
