@@ -46,7 +46,9 @@ MAX_FACTOR = 1.6                            # no length leaves [estimate / this,
 MIN_NECK_M = 0.05
 FRAME_COST_MAX = 12.0                       # a frame the estimate fits worse than this is left out
 MIN_FRAMES = 5                              # fewer frames left: the estimate stays
-PRIOR_COST = 0.01                           # per frame, per % a length moved (per cm of the cue's height)
+# per frame and per % a length moved (per cm of the cue's height). Without it the silhouettes
+# recover a rendered body's lengths but pull some of the suite's fused clips far off (docs/body.md)
+PRIOR_COST = 0.01
 
 
 def _with(lengths: BoneLengths, name: str, value: float) -> BoneLengths | None:
@@ -73,7 +75,7 @@ def frame_costs(lengths: BoneLengths, frames: Sequence[tuple], analytic: Analyti
     return out
 
 
-def _prior(lengths: BoneLengths, estimate: BoneLengths) -> float:
+def moved_percent(lengths: BoneLengths, estimate: BoneLengths) -> float:
     """Percent the lengths moved from ``estimate`` (cm for the torso cue's height)."""
     p = 100.0 * abs(lengths.torso_cue_up_m - estimate.torso_cue_up_m)
     for name in PARAMS[1:]:
@@ -82,12 +84,13 @@ def _prior(lengths: BoneLengths, estimate: BoneLengths) -> float:
 
 
 def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: AnalyticConfig = AnalyticConfig(),
-                     fit: FitConfig = FitConfig(), sweeps: int = 2) -> BoneLengths:
+                     fit: FitConfig = FitConfig(), sweeps: int = 2, prior_cost: float = PRIOR_COST) -> BoneLengths:
     """``estimate`` with ``PARAMS`` fitted to ``frames`` (module doc): ``sweeps`` coordinate
     sweeps over ``STEPS`` (``CUE_STEPS_M``), then one over ``FINE_STEPS``
-    (``FINE_CUE_STEPS_M``). ``frames``: (cues (6, 3) metres, world; body axes (3, 3);
-    ``SilhouetteTargets``). Frames with a missing cue or no view are skipped; with fewer than
-    ``MIN_FRAMES`` usable, ``estimate`` is returned."""
+    (``FINE_CUE_STEPS_M``); ``prior_cost`` per frame and per % moved (``PRIOR_COST``).
+    ``frames``: (cues (6, 3) metres, world; body axes (3, 3); ``SilhouetteTargets``). Frames
+    with a missing cue or no view are skipped; with fewer than ``MIN_FRAMES`` usable,
+    ``estimate`` is returned."""
     frames = [f for f in frames if np.isfinite(f[0]).all() and isinstance(f[2], SilhouetteTargets)
               and f[2].n_views > 0]
     if len(frames) < MIN_FRAMES:
@@ -96,7 +99,7 @@ def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: A
     frames = [f for f, c in zip(frames, costs) if c <= FRAME_COST_MAX]
     if len(frames) < MIN_FRAMES:
         return estimate
-    w_prior = PRIOR_COST * len(frames)
+    w_prior = prior_cost * len(frames)
     lengths, best = estimate, float(costs[costs <= FRAME_COST_MAX].sum())
     for fine in [False] * sweeps + [True]:
         for name in PARAMS:
@@ -109,7 +112,7 @@ def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: A
                 cand = _with(lengths, name, v)
                 if cand is None:
                     continue
-                cost = float(frame_costs(cand, frames, analytic, fit).sum()) + w_prior * _prior(cand, estimate)
+                cost = float(frame_costs(cand, frames, analytic, fit).sum()) + w_prior * moved_percent(cand, estimate)
                 if cost < best:
                     best, lengths = cost, cand
     return lengths

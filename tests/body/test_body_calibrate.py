@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from mocap_rt.body.analytic import analytic_pose
-from mocap_rt.body.calibrate import fit_bone_lengths
+from mocap_rt.body.calibrate import fit_bone_lengths, moved_percent
+from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, pose_points
 from mocap_rt.body.skeleton import BoneLengths, J, body_model
@@ -36,7 +37,7 @@ def _frames(rig, lengths):
     for k in range(8):
         yaw = np.radians(40.0 * k)
         R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])
-        torso = np.array([0.1 * k - 0.3, 0.05 * k, 1.05])
+        torso = np.array([0.1 * k - 0.3, 0.05 * k, 1.15])   # the shoes above the floor, which hides what is below it
         up = R[:, 2]
         head = torso + up * (lengths.trunk_m / 2 + lengths.neck_head_m - lengths.torso_cue_up_m)
         rest = model.rest_positions()
@@ -74,19 +75,35 @@ def frames():
     return _frames(ring_rig(6, size=(640, 480)), TRUE)
 
 
-def test_the_fit_finds_the_subjects_proportions_from_the_default_adults(frames):
-    # what the cues alone give: the default proportions, the head at its measured distance
+def _start():
+    """What the cues alone give: the default proportions, the head at its measured distance."""
     start = replace(BoneLengths().scaled(0.95), torso_cue_up_m=0.0)
-    start = replace(start, neck_head_m=TRUE.trunk_m / 2 + TRUE.neck_head_m - TRUE.torso_cue_up_m - start.trunk_m / 2)
-    fitted = fit_bone_lengths(start, [f[:3] for f in frames])
+    return replace(start, neck_head_m=TRUE.trunk_m / 2 + TRUE.neck_head_m - TRUE.torso_cue_up_m - start.trunk_m / 2)
+
+
+def test_the_silhouettes_cost_nothing_at_the_truth(frames):
+    true_fit, start_fit = BodyFitter(body_model(TRUE, "paper")), BodyFitter(body_model(_start(), "paper"))
+    true_cost = [true_fit.fit(cues, axes, None, targets).silhouette_cm2 for cues, axes, targets, _ in frames]
+    start_cost = [start_fit.fit(cues, axes, None, targets).silhouette_cm2 for cues, axes, targets, _ in frames]
+    assert max(true_cost) < 0.05, true_cost          # cm^2 a frame: 0.01
+    assert np.mean(start_cost) > 20 * np.mean(true_cost), start_cost
+
+
+def test_the_fit_finds_the_subjects_proportions_from_the_default_adults(frames):
+    start = _start()
+    fitted = fit_bone_lengths(start, [f[:3] for f in frames], prior_cost=0.0)
     for name in ("shoulder_half_width_m", "forearm_m", "torso_cue_up_m"):     # what the cues cannot measure
         assert abs(getattr(fitted, name) - getattr(TRUE, name)) < abs(getattr(start, name) - getattr(TRUE, name))
     e0, e1 = (_joint_error_mm(L, frames, ELBOWS + SHOULDERS) for L in (start, fitted))
-    assert e1 < 0.5 * e0, (e0, e1)          # 92 -> 40 mm
+    assert e1 < 0.25 * e0, (e0, e1)          # 92 -> 16 mm
     # the head stays where the cues put it
     for L in (start, fitted):
         assert L.trunk_m / 2 + L.neck_head_m - L.torso_cue_up_m == pytest.approx(
             TRUE.trunk_m / 2 + TRUE.neck_head_m - TRUE.torso_cue_up_m)
+    # the service's prior keeps the lengths nearer the estimate, part of the way to the truth
+    near = fit_bone_lengths(start, [f[:3] for f in frames])
+    assert moved_percent(near, start) < moved_percent(fitted, start)
+    assert e1 < _joint_error_mm(near, frames, ELBOWS + SHOULDERS) < 0.6 * e0      # 49 mm
 
 
 def test_the_true_arms_stay(frames):
