@@ -37,7 +37,7 @@ from numba import njit
 from mocap_rt.body.analytic import _LIMB_JOINTS, NO_VIEWS, AnalyticConfig, _analytic, _angles_from_frames, limb_args
 from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, N_FOOT_COLS, foot_axis_cost
 from mocap_rt.body.kinematics import fk_kernel
-from mocap_rt.body.limb_geometry import _cross, _nunit, _rot_about, joint_violation
+from mocap_rt.body.limb_geometry import _cross, _frame, _rot_about, joint_violation
 from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SilhouetteTargets, body_capsules, capsules_cost, \
     pose_points
 from mocap_rt.body.skeleton import BodyModel
@@ -186,11 +186,7 @@ def _fit_torso(cues, axes0, swivel, lengths, poles, arm_lim, foot_rest, limb_joi
                 trial[d] = start + k * st
                 for i in range(3):
                     c[C_TORSO, i] = torso0[i] + trial[0] * axes0[i, 1] + trial[1] * axes0[i, 2]
-                up = _nunit(cues[C_HEAD] - c[C_TORSO], axes0[:, 2])
-                r = _nunit(right0 - up * (right0 @ up), right0)
-                fw = _cross(up, r)
-                for i in range(3):
-                    axc[i, 0], axc[i, 1], axc[i, 2] = r[i], fw[i], up[i]
+                _frame(cues[C_HEAD] - c[C_TORSO], right0, axc)     # (right, forward, up): Z up to the head
                 viol, sil, _ = _evaluate(c, axc, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
                                          offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
                                          outline, n_outline, _NO_FEET, w[0], 0.0, R, ang, pos, rot, points, A, B)
