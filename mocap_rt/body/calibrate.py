@@ -175,10 +175,13 @@ class BackgroundFit:
                     raise RuntimeError(f"the bone lengths' fit gave no result within {timeout} s")
                 self._answer = self._recv.recv()
             except (EOFError, OSError) as e:
+                self._proc.join(0.5)        # a crash: its exit code for the message
                 raise RuntimeError("the bone lengths' fit ended without a result (exit code "
                                    f"{self._proc.exitcode})") from e
-            finally:
-                self._proc.join(0.5)
+            # reaped if it has exited; not waited for: the service's frame takes the answer, and
+            # the process, at the idle priority, may need the CPU for a while to exit (a join of
+            # up to 0.5 s here stalled the demo's poses by 180-500 ms)
+            self._proc.join(0)
         ok, value = self._answer
         if not ok:
             raise RuntimeError(f"the bone lengths' fit failed: {value}")
