@@ -35,6 +35,23 @@ def test_stamp_follows_the_kernel_sources_numba_and_the_cache_dir(tmp_path, monk
     assert not warmup.is_warm()                                  # the digest names the cache dir
 
 
+def test_a_warm_up_on_synthetic_frames_is_not_warm_once_the_data_is_there(tmp_path, monkeypatch):
+    """Synthetic frames leave kernels out: with the data's clip at hand their stamp is cold
+    (the next warm-up renders the clip), without it warm; a rendered scene's stamp is warm."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    data = tmp_path / "data"
+    clip = data / warmup.DEFAULT_CLIP
+    clip.parent.mkdir(parents=True)
+    clip.write_text("HIERARCHY\n")
+    monkeypatch.setenv("MOCAP_RT_DATA", str(tmp_path / "nothing here"))
+    warmup.stamp_path().write_text(json.dumps({"digest": warmup.sources_digest(), "scene": warmup.SYNTHETIC_SCENE}))
+    assert warmup.is_warm()
+    monkeypatch.setenv("MOCAP_RT_DATA", str(data))
+    assert not warmup.is_warm()
+    warmup.stamp_path().write_text(json.dumps({"digest": warmup.sources_digest(), "scene": f"rendering {clip}"}))
+    assert warmup.is_warm()
+
+
 def test_the_package_kernel_sources_are_the_numba_modules():
     names = {p.name for p in warmup.kernel_sources()}
     assert {"blob_kernels.py", "ik_kernels.py", "render_kernels.py", "warmup.py"} <= names
