@@ -230,8 +230,12 @@ def clear_large_holes(sil, member, change, step, min_area):  # pragma: no cover 
         m_row = member[y * step]
         c_row = change[y * step]
         h_row = holes[y]
-        for x in range(w):
-            h_row[x] = (m_row[x * step] != 0) & (c_row[x * step] == 0)
+        if step == 2:      # a constant stride the compiler vectorises (the 640x480 torso's: 14 -> 3 us)
+            for x in range(w):
+                h_row[x] = (m_row[2 * x] != 0) & (c_row[2 * x] == 0)
+        else:
+            for x in range(w):
+                h_row[x] = (m_row[x * step] != 0) & (c_row[x * step] == 0)
     row_first, ra, rb = _row_runs(holes)
     n = ra.size
     if n == 0:

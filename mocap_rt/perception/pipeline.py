@@ -279,7 +279,7 @@ class CameraPerceiver:
             return self._sil, self._sil, (0, 0, 0, 0)
         box = (rx0 + cx, ry0 + cy, cw, ch)
         self._box, self._sil_box = box, box
-        change = mask[cy:cy + ch, cx:cx + cw]
+        change = np.ascontiguousarray(mask[cy:cy + ch, cx:cx + cw])   # the kernels vectorise on C layout
         if cfg.change.edge_strength <= 1.0:
             change = np.full_like(change, 255)      # no boundary clean-up
         return member, change, box

@@ -127,25 +127,28 @@ def half_cells(sil, step):  # pragma: no cover - numba
     edge count as background. ``cues.CompactSilhouette.from_box_mask``'s cells (its area mean
     >= 0.5), by counting: identical for steps 2-5, the steps of boxes up to 640 x 480.
 
-    Row of cells by row of cells: the person pixels of its ``step`` rows summed per column (a
-    unit-stride loop the compiler vectorises), then each cell's ``step`` columns (14 -> 7-10 us
-    on a 640x480 person box against adding each row's pixels to the cells with a stride)."""
+    Row of cells by row of cells: the person pixels of its ``step`` rows counted per column in
+    uint8 (a unit-stride loop the compiler vectorises; at most ``step`` per column), then each
+    cell's ``step`` columns, the pairs of step 2 (the 640x480 person box's) without a loop
+    (10 -> 6 us on a 640x480 person box; 14 us adding each row's pixels to the cells with a stride)."""
     bh, bw = sil.shape
     h, w = -(-bh // step), -(-bw // step)
-    counts = np.zeros((h, w), np.int32)
-    col = np.zeros(w * step, np.int32)       # per column of the row of cells, zero-padded to whole cells
+    out = np.empty((h, w), np.bool_)
+    col = np.zeros(w * step, np.uint8)       # per column of the row of cells, zero-padded to whole cells
     for i in range(h):
         col[:] = 0
         for y in range(i * step, min((i + 1) * step, bh)):
             row = sil[y]
             for x in range(bw):
-                col[x] += np.int32(row[x] != 0)
-        c_row = counts[i]
-        for d in range(step):
+                col[x] += np.uint8(row[x] != 0)
+        o = out[i]
+        if step == 2:
             for k in range(w):
-                c_row[k] += col[k * step + d]
-    out = np.empty((h, w), np.bool_)
-    for i in range(h):
-        for j in range(w):
-            out[i, j] = 2 * counts[i, j] >= step * step
+                o[k] = col[2 * k] + col[2 * k + 1] >= 2
+        else:
+            for k in range(w):
+                c = 0
+                for d in range(step):
+                    c += col[k * step + d]
+                o[k] = 2 * c >= step * step
     return out

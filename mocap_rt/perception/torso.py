@@ -115,17 +115,27 @@ def ridge_point(m, step):  # pragma: no cover - numba
 
 @numba.njit(cache=True, nogil=True)
 def ridge_moments(dist, ridge_frac):  # pragma: no cover - numba
-    """Moments of the ridge band ``dist >= ridge_frac * max(dist)`` of a distance map (h, w) float32.
+    """Moments of the ridge band ``dist >= ridge_frac * max(dist)`` of a distance map (h, w) float32
+    (>= 0, as ``cv2.distanceTransform`` gives).
 
     Returns (n, sum x, sum y, mu20, mu11, mu02, max): pixel count, coordinate sums and
     central second moments (as ``cv2.moments``, binaryImage=True, computes them), and the
     maximum; n = 0 when the maximum is not positive.
+
+    Both passes are loops the compiler vectorises (15 -> 3.5 us on a 640x480 person's map at
+    step 2): the maximum over the values' bits as int32 (a non-negative float's bits order as
+    its value; a float maximum is not vectorised), and the band's sums row by row, the row's
+    in the inner loop without a branch.
     """
     h, w = dist.shape
-    peak = np.float32(0.0)
+    bits = dist.view(np.int32)
+    top = np.int32(0)
     for y in range(h):
+        row = bits[y]
         for x in range(w):
-            peak = max(peak, dist[y, x])
+            v = row[x]
+            top = v if v > top else top
+    peak = np.array([top], np.int32).view(np.float32)[0]
     out = np.zeros(7)
     out[6] = peak
     if peak <= 0:
@@ -138,14 +148,21 @@ def ridge_moments(dist, ridge_frac):  # pragma: no cover - numba
     sxy = 0
     syy = 0
     for y in range(h):
+        row = dist[y]
+        rn = 0
+        rx = 0
+        rxx = 0
         for x in range(w):
-            if dist[y, x] >= thr:
-                n += 1
-                sx += x
-                sy += y
-                sxx += x * x
-                sxy += x * y
-                syy += y * y
+            b = np.int64(row[x] >= thr)
+            rn += b
+            rx += b * x
+            rxx += b * (x * x)
+        n += rn
+        sx += rx
+        sxx += rxx
+        sy += rn * y
+        sxy += rx * y
+        syy += rn * (y * y)
     cx = sx * (1.0 / n)
     cy = sy * (1.0 / n)
     out[0] = n
