@@ -150,10 +150,14 @@ def _bilinear(src, x, y, w, h, ox, oy):  # pragma: no cover - numba
     yi = min(int(y), h - 2)
     fx = x - xi
     fy = y - yi
-    xi -= ox
-    yi -= oy
-    a = src[yi, xi] * (1.0 - fx) + src[yi, xi + 1] * fx
-    b = src[yi + 1, xi] * (1.0 - fx) + src[yi + 1, xi + 1] * fx
+    # unsigned indices: numba checks a signed one for wrap-around (the deformable ellipse
+    # samples ~1300 points a blob; 9.9 -> 9.0 us a head)
+    r0 = src[np.uintp(yi - oy)]
+    r1 = src[np.uintp(yi - oy + 1)]
+    c0 = np.uintp(xi - ox)
+    c1 = np.uintp(xi - ox + 1)
+    a = r0[c0] * (1.0 - fx) + r0[c1] * fx
+    b = r1[c0] * (1.0 - fx) + r1[c1] * fx
     return a * (1.0 - fy) + b * fy
 
 
