@@ -17,6 +17,30 @@ import numpy as np
 
 
 @numba.njit(cache=True, nogil=True)
+def _chroma_boxes(table, emax_a, emax_b):  # pragma: no cover - numba
+    """The chromaticity box (r lo, r hi, g lo, g hi, float32) of each model's accepted pixels:
+    its table's (R/S, G/S) over the grey levels it holds, widened by the error radius
+    sqrt(emax) and 1e-6 (rounding). A pixel outside both boxes fails both tests; an empty box
+    (lo > hi) for a model that holds no grey level."""
+    lim = np.empty(8)
+    for m in range(2):
+        lim[4 * m] = lim[4 * m + 2] = np.inf
+        lim[4 * m + 1] = lim[4 * m + 3] = -np.inf
+    for si in range(1, table.shape[0]):
+        valid = np.int64(table[si, 4])
+        for m in range(2):
+            if valid & (m + 1):
+                lim[4 * m] = min(lim[4 * m], table[si, 2 * m])
+                lim[4 * m + 1] = max(lim[4 * m + 1], table[si, 2 * m])
+                lim[4 * m + 2] = min(lim[4 * m + 2], table[si, 2 * m + 1])
+                lim[4 * m + 3] = max(lim[4 * m + 3], table[si, 2 * m + 1])
+    r_a = np.sqrt(emax_a) + 1e-6
+    r_b = np.sqrt(emax_b) + 1e-6
+    return (np.float32(lim[0] - r_a), np.float32(lim[1] + r_a), np.float32(lim[2] - r_a), np.float32(lim[3] + r_a),
+            np.float32(lim[4] - r_b), np.float32(lim[5] + r_b), np.float32(lim[6] - r_b), np.float32(lim[7] + r_b))
+
+
+@numba.njit(cache=True, nogil=True)
 def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b, sil, map_a, map_b):  # pragma: no cover
     """Silhouette and two colour maps of a box in one pass.
 
@@ -35,6 +59,9 @@ def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b,
     (float32, as ``colour_model.colour_bits`` divides) of the whole row, then the table test on the
     silhouette pixels, written out here (through an inlined helper function numba's code was
     2.4x slower). 640x480 person box, one core: ~0.15 ms against ~0.25 ms for one branchy loop.
+    The table test runs only on the silhouette pixels inside a model's chromaticity box
+    (``_chroma_boxes``), marked in the chromaticity loop: ~15 % of the person's pixels on the
+    studio clips (clothes are neither skin nor shoe), 89 -> 81 us.
     """
     h, w = member.shape
     W = img.shape[1]
@@ -42,6 +69,8 @@ def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b,
     rn_row = np.empty(w, np.float32)
     gn_row = np.empty(w, np.float32)
     si_row = np.empty(w, np.int32)
+    cand = np.empty(w, np.uint8)
+    ra0, ra1, ga0, ga1, rb0, rb1, gb0, gb1 = _chroma_boxes(table, emax_a, emax_b)
     n_total = 0
     for y in range(h):
         m = member[y]
@@ -69,15 +98,24 @@ def silhouette_colour_kernel(member, change, img, x0, y0, table, emax_a, emax_b,
             continue
         n_total += n_sil
         px = flat[3 * ((y0 + y) * W + x0):3 * ((y0 + y) * W + x0 + w)]
+        n_cand = 0
         for x in range(w):
             si = np.int32(px[3 * x]) + np.int32(px[3 * x + 1]) + np.int32(px[3 * x + 2])
             s = np.float32(max(si, 1))
-            rn_row[x] = np.float32(px[3 * x + 2]) / s
-            gn_row[x] = np.float32(px[3 * x + 1]) / s
+            rn = np.float32(px[3 * x + 2]) / s
+            gn = np.float32(px[3 * x + 1]) / s
+            rn_row[x] = rn
+            gn_row[x] = gn
             si_row[x] = si
+            c = (s_row[x] != 0) & (((rn >= ra0) & (rn <= ra1) & (gn >= ga0) & (gn <= ga1))
+                                   | ((rn >= rb0) & (rn <= rb1) & (gn >= gb0) & (gn <= gb1)))
+            cand[x] = np.uint8(c)
+            n_cand += np.int64(c)
+        if n_cand == 0:
+            continue
         for x in range(w):
             si = si_row[x]
-            if s_row[x] == 0 or si == 0:
+            if cand[x] == 0 or si == 0:
                 continue
             valid = np.int64(table[si, 4])           # bit 0: model a's grey range holds si / 3, 1: b's
             if valid & 1:
