@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from mocap_rt.cues import CompactSilhouette
 from mocap_rt.perception.colour_model import ColourModel, chroma_table, default_colour_model
-from mocap_rt.perception.silhouette import half_cells, silhouette_colour
+from mocap_rt.perception.silhouette import _chroma_boxes, half_cells, silhouette_colour
 
 TRUE_COEFFS = np.array([[-0.0025, 1.70], [0.0002, 0.92], [0.0023, 0.38]])
 
@@ -69,6 +69,34 @@ def test_chroma_table_rows_are_the_model_chromaticity():
         np.testing.assert_array_equal((t[:, 4].astype(int) >> m) & 1, inside)
         np.testing.assert_allclose(t[inside, 2 * m], (rgb[:, 0] / rgb.sum(1))[inside], rtol=1e-6)
         np.testing.assert_allclose(t[inside, 2 * m + 1], (rgb[:, 1] / rgb.sum(1))[inside], rtol=1e-6)
+
+
+def test_chroma_boxes_hold_every_pixel_a_model_accepts():
+    """The pre-test of the colour pass: every BGR value of a dense sample that the NumPy colour
+    model accepts lies in its model's box, and the boxes are small (they skip the table test
+    for most pixels); a model without a grey level in range has an empty box."""
+    from mocap_rt.perception.colour_model import colour_maps_binary
+
+    skin = ColourModel("a", TRUE_COEFFS, 4e-4, 4e-3, 30.0, 230.0)
+    shoe = default_colour_model("shoe")
+    rng = np.random.default_rng(7)
+    grey = rng.uniform(0, 255, 200_000)
+    near = skin.model_rgb(grey)[:, ::-1] + rng.normal(0, 3, (grey.size, 3))       # around the skin locus
+    img = np.clip(np.concatenate([near, rng.uniform(0, 255, (200_000, 3))]), 0, 255).astype(np.uint8)[None]
+    a, b = colour_maps_binary(img, skin, shoe, np.ones(img.shape[:2], np.uint8))
+    box = np.array(_chroma_boxes(chroma_table(skin.kernel_params(), shoe.kernel_params()),
+                                 skin.max_error, shoe.max_error)).reshape(2, 4)
+    px = img[0].astype(np.float32)
+    s = np.maximum(px.sum(axis=1), 1)
+    rn, gn = px[:, 2] / s, px[:, 1] / s
+    for accepted, (r0, r1, g0, g1) in zip((a[0] > 0, b[0] > 0), box):
+        assert accepted.sum() > 1000
+        inside = (rn >= r0) & (rn <= r1) & (gn >= g0) & (gn <= g1)
+        assert inside[accepted].all()
+        assert inside[200_000:].mean() < 0.2                     # of the uniform sample
+    out_of_range = ColourModel("c", TRUE_COEFFS, 4e-4, 4e-3, 300.0, 310.0)     # grey levels past 255
+    empty = _chroma_boxes(chroma_table(out_of_range.kernel_params(), shoe.kernel_params()), 1e-3, 1e-3)
+    assert empty[0] > empty[1] and empty[2] > empty[3]
 
 
 @settings(max_examples=40, deadline=None)
