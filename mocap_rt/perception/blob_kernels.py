@@ -231,8 +231,11 @@ def deform_ellipse(skin, sil, mean, cov, kp, contour, sites, k_site):  # pragma:
         ey = min(h, int(math.floor(my + reach)) + 3)
         src = np.zeros((max(ey - oy, 0), max(ex - ox, 0)), skin.dtype)
         for y in range(oy, ey):
-            for x in range(ox, ex):
-                src[y - oy, x - ox] = _own(skin, x, y, sites, k_site)
+            s_row = skin[y, ox:ex]
+            d_row = src[y - oy]
+            for i in range(s_row.shape[0]):
+                if s_row[i] != 0:                  # src is 0 elsewhere, as _own gives there
+                    d_row[i] = _own(skin, ox + i, y, sites, k_site)
     else:
         ox = 0
         oy = 0
