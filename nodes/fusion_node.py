@@ -59,14 +59,15 @@ class FusionSettings(NodeSettings):
             raise ValueError(f"deadline_frac must be in (0, 1], got {self.deadline_frac}")
 
 
-def make_tracker(rig, fps: float, bone_lengths=None):
+def make_tracker(rig, fps: float, bone_lengths=None, background: bool = True):
     """D's ``BodyTracker`` with its default config at the stream's frame rate; the bone
     lengths are estimated from the first seconds of cues unless given, their fit to the
-    silhouettes in another process (the frames do not wait for it)."""
+    silhouettes in another process (the frames do not wait for it; ``background`` False: in
+    the frame, for a tracker that never gets that far)."""
     from mocap_rt.fusion.config import FusionConfig
     from mocap_rt.fusion.tracker import BodyTracker
 
-    return BodyTracker(rig, FusionConfig(fps=fps, bone_lengths=bone_lengths), background_calibration=True)
+    return BodyTracker(rig, FusionConfig(fps=fps, bone_lengths=bone_lengths), background_calibration=background)
 
 
 def warm_up(rig, fps: float) -> float:
@@ -75,7 +76,7 @@ def warm_up(rig, fps: float) -> float:
     from mocap_rt.cues import N_CUES, CameraCues, CompactSilhouette
 
     t0 = time.perf_counter()
-    tracker = make_tracker(rig, fps)
+    tracker = make_tracker(rig, fps, background=False)     # calibrates after seconds: no fit's process
     for f in range(WARM_UP_FRAMES):
         cues = {}
         for cam in rig.cameras:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import threading
+import weakref
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -120,22 +121,39 @@ def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: A
 
 def _fit_in_child(jobs, send) -> None:
     """``BackgroundFit``'s process: ``fit_bone_lengths(*args)`` of the args received on ``jobs``,
-    its result (True, lengths) or failure (False, message) sent on ``send``."""
+    its result (True, lengths) or failure (False, message) sent on ``send``; nothing when the
+    parent closed ``jobs`` without a job."""
     try:
-        send.send((True, fit_bone_lengths(*jobs.recv())))
+        args = jobs.recv()
+    except EOFError:
+        send.close()
+        return
+    try:
+        send.send((True, fit_bone_lengths(*args)))
     except Exception as e:      # noqa: BLE001 - reported to the parent, which keeps its estimate
         send.send((False, f"{type(e).__name__}: {e}"))
     finally:
         send.close()
 
 
+def _stop(proc) -> None:
+    if proc.is_alive():
+        proc.terminate()
+
+
 class BackgroundFit:
     """``fit_bone_lengths(*args)`` in a spawned process at the idle CPU priority (the
     service's fusion: 2-4 s of CPU that must neither stall its frames nor share their
-    interpreter lock; a thread doubled the service's latency p99). The frames go to the process
-    from a thread (a pipe blocks until the new interpreter reads them, ~1 s). ``done()`` polls,
-    ``result()`` gives the lengths or raises ``RuntimeError``. The process is a daemon: a node
-    that stops does not wait for it."""
+    interpreter lock; a thread doubled the service's latency p99).
+
+    The process may start before its job: ``BackgroundFit()`` starts it, ``submit(*args)``
+    gives the job (``BackgroundFit(*args)`` does both). Its start, a new interpreter importing
+    NumPy and numba, delayed the service's next pose by 5-10 ms when it came with the job at
+    the calibration (the demo's frame 60: 16-21 ms in 4 of 7 runs against a p99 of 11 ms; never
+    without the fit). The frames go to the process from a thread (a pipe blocks until the new
+    interpreter reads them). ``done()`` polls, ``result()`` gives the lengths or raises
+    ``RuntimeError``. The process is a daemon (a node that stops does not wait for it), and is
+    stopped when this object is collected."""
 
     def __init__(self, *args) -> None:
         ctx = multiprocessing.get_context("spawn")
@@ -152,8 +170,18 @@ class BackgroundFit:
                 pass
         send.close()
         jobs.close()
-        threading.Thread(target=self._send, args=(args,), name="mocap-calibrate-send", daemon=True).start()
+        weakref.finalize(self, _stop, self._proc)
         self._answer: tuple | None = None       # (ok, lengths or message), once received
+        self._submitted = False
+        if args:
+            self.submit(*args)
+
+    def submit(self, *args) -> None:
+        """Give the process its job, ``fit_bone_lengths(*args)`` (once)."""
+        if self._submitted:
+            raise RuntimeError("a BackgroundFit runs one job")
+        self._submitted = True
+        threading.Thread(target=self._send, args=(args,), name="mocap-calibrate-send", daemon=True).start()
 
     def _send(self, args: tuple) -> None:
         try:

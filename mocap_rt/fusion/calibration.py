@@ -6,8 +6,8 @@
 then, with ``FusionConfig.fit_bone_lengths``, ``body.calibrate.fit_bone_lengths`` fits the
 proportions to the kept silhouettes. That fit takes 2-4 s of CPU: in the background
 (``background``, the service) it runs in another process at the idle priority
-(``calibrate.BackgroundFit``) and ``poll`` hands over its lengths once it is done; else
-(offline) it runs in the frame that calibrates.
+(``calibrate.BackgroundFit``, started with the window, before the frames) and ``poll`` hands
+over its lengths once it is done; else (offline) it runs in the frame that calibrates.
 """
 
 from __future__ import annotations
@@ -34,6 +34,10 @@ class LengthCalibration:
         self.config = config
         self.background = background
         self.fitting: BackgroundFit | None = None     # the background fit under way
+        # its process, started now, before the frames (``BackgroundFit``: a start at the
+        # calibration delayed the next pose)
+        self._process = (BackgroundFit() if background and config.fit_bone_lengths and config.bone_lengths is None
+                         else None)
         self._cues: list[np.ndarray] = []
         self._axes: list[np.ndarray] = []
         self._views: list[tuple] = []
@@ -69,7 +73,8 @@ class LengthCalibration:
             return est
         args = (est, views, self.config.analytic, self.config.fit)
         if self.background:
-            self.fitting = BackgroundFit(*args)
+            self.fitting, self._process = self._process or BackgroundFit(), None
+            self.fitting.submit(*args)
             return est
         return _fitted(fit_bone_lengths(*args))
 

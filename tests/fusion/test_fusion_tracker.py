@@ -167,6 +167,36 @@ def test_the_silhouette_fit_of_the_lengths_runs_in_the_background_and_agrees(bac
     rec.close()
 
 
+def test_the_background_fits_process_starts_before_the_frames():
+    """The service's tracker starts the fit's process when it is made (a start at the
+    calibration delayed the next pose); the job comes later, once; a process that never got
+    one is stopped with its object. No process where no fit will run."""
+    import gc
+
+    from mocap_rt.body.calibrate import BackgroundFit
+    from mocap_rt.body.skeleton import BoneLengths
+
+    tracker = BodyTracker(ring_rig(6), FusionConfig(), background_calibration=True)
+    spare = tracker.calibration._process
+    assert isinstance(spare, BackgroundFit) and spare._proc.is_alive() and not spare.done()
+    for given in (BodyTracker(ring_rig(6), FusionConfig(bone_lengths=BoneLengths()), background_calibration=True),
+                  BodyTracker(ring_rig(6), FusionConfig(fit_bone_lengths=False), background_calibration=True),
+                  BodyTracker(ring_rig(6), FusionConfig())):
+        assert given.calibration._process is None
+    proc = spare._proc
+    tracker.calibration._process = spare = None
+    gc.collect()
+    proc.join(10)
+    assert not proc.is_alive()
+
+    fit = BackgroundFit()
+    fit.submit(BoneLengths(), [("not a frame",)] * 6)      # raises in the child
+    with pytest.raises(RuntimeError, match="one job"):
+        fit.submit(BoneLengths(), [])
+    with pytest.raises(RuntimeError, match="fit failed: TypeError"):
+        fit.result(timeout=120)
+
+
 def test_a_failed_background_fit_keeps_the_estimate(caplog):
     from mocap_rt.body.calibrate import BackgroundFit
 
