@@ -171,9 +171,9 @@ class BackgroundFit:
     The service's pose after the calibration (the demo's frame 60, p99 11 ms) was late
     (16-42 ms) in 2 of 3 runs with the process started at the job and the ~9 MB pickled in band,
     in 3 of 10 with the early start alone, in 2 of 4 with the out-of-band pickle alone, in 0 of
-    10 with both, and in 0 of 4 with the fit turned off. ``done()`` polls, ``result()`` gives the lengths or raises
-    ``RuntimeError``. The process is a daemon (a node that stops does not wait for it), and is
-    stopped when this object is collected."""
+    10 with both, and in 0 of 4 with the fit turned off. ``done()`` polls, ``result()`` gives
+    the lengths or raises ``RuntimeError``. The process is a daemon (a node that stops does not
+    wait for it), and is stopped when this object is collected."""
 
     def __init__(self, *args) -> None:
         ctx = multiprocessing.get_context("spawn")
