@@ -52,6 +52,20 @@ def test_a_warm_up_on_synthetic_frames_is_not_warm_once_the_data_is_there(tmp_pa
     assert warmup.is_warm()
 
 
+def test_without_the_variable_the_data_beside_the_checkout_counts(tmp_path, monkeypatch):
+    """No ``MOCAP_RT_DATA``: the clip is looked for in the project's data (``../shared/data``,
+    where the benches read it), so a synthetic warm-up there is cold too."""
+    monkeypatch.delenv("MOCAP_RT_DATA", raising=False)
+    monkeypatch.setattr(warmup, "DEFAULT_DATA", tmp_path)
+    assert warmup.default_motion() is None
+    clip = tmp_path / warmup.DEFAULT_CLIP
+    clip.parent.mkdir(parents=True)
+    clip.write_text("HIERARCHY\n")
+    assert warmup.default_motion() == clip
+    monkeypatch.setenv("MOCAP_RT_DATA", str(tmp_path / "elsewhere"))
+    assert warmup.default_motion() is None                       # the variable wins
+
+
 def test_the_package_kernel_sources_are_the_numba_modules():
     names = {p.name for p in warmup.kernel_sources()}
     assert {"blob_kernels.py", "ik_kernels.py", "render_kernels.py", "warmup.py"} <= names
