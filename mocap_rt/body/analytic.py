@@ -65,6 +65,8 @@ class AnalyticConfig:
     snap_standing: bool = False     # standing: take the feet/hands line modulo 90 deg near the previous pan
     walk_sign_from_labels: bool = True  # the walking direction gives the heading's line, the labels its sign
                                         # (False: the body faces where it walks, the issue-5 behaviour)
+    trunk_from_head: bool = False   # the trunk hung from the head cue (the head joint on it) along the
+                                    # axes' up, not placed on the torso cue (``body.fit.refine_trunk``)
 
 
 def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
@@ -147,11 +149,14 @@ def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swive
     """
     elbow_raise, elbow_down, knee_open = poles[0], poles[1], poles[2]
     n_poles = int(poles[3])
-    trunk, sh_half, upper_len, fore_len, hip_half, thigh, shank, foot_len, torso_cue_up = lengths
+    trunk, sh_half, upper_len, fore_len, hip_half, thigh, shank, foot_len, torso_cue_up, neck_head, from_head = lengths
     right = axes[:, 0].copy()
     forward = axes[:, 1].copy()
     up = axes[:, 2].copy()
-    torso = cues[C_TORSO] - up * torso_cue_up
+    if from_head > 0.0:     # the head joint on the head cue (AnalyticConfig.trunk_from_head)
+        torso = cues[C_HEAD] - up * (neck_head + trunk / 2)
+    else:
+        torso = cues[C_TORSO] - up * torso_cue_up
     pelvis = torso - up * (trunk / 2)
     neck = torso + up * (trunk / 2)
     for j in range(4):  # pelvis, torso, neck, head
@@ -228,15 +233,16 @@ _LIMB_JOINTS = np.array([[J[f"{n}_{s}"] for n in ("shoulder", "elbow", "wrist", 
 
 def limb_args(model: BodyModel, config: AnalyticConfig,
               elbow_pole_search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The arrays ``_analytic`` takes: lengths (9,) metres (trunk, shoulder half width,
+    """The arrays ``_analytic`` takes: lengths (11,) metres (trunk, shoulder half width,
     upper arm, forearm + hand, hip half width, thigh, shank, foot, the torso cue above the
-    torso joint), poles (6,) (elbow
+    torso joint, neck -> head; then 1.0 with ``trunk_from_head``, else 0.0), poles (6,) (elbow
     raise, elbow down, knee open radians; elbow pole candidates, 0 without
     ``elbow_pole_search``; twist cost; turn cost), arm_lim (2, 3, 2) radians (the shoulders' limits,
     left then right) and foot_rest (3,) (the foot's rest direction, body frame)."""
     L = model.lengths
     lengths = np.array([L.trunk_m, L.shoulder_half_width_m, L.upper_arm_m, L.forearm_m + L.hand_m,
-                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m, L.torso_cue_up_m])
+                        L.hip_half_width_m, L.thigh_m, L.shank_m, L.foot_m, L.torso_cue_up_m, L.neck_head_m,
+                        float(config.trunk_from_head)])
     poles = np.array([np.radians(config.elbow_raise_deg), np.radians(config.elbow_down_deg),
                       np.radians(config.knee_open_deg),
                       float(config.elbow_pole_candidates) if elbow_pole_search else 0.0, config.elbow_twist_cost,

@@ -25,11 +25,15 @@ least shoulder violation + twist + the silhouette distance of its upper arm, elb
 forearm + ``AnalyticConfig.elbow_turn_cost`` per degree turned from the default pole
 ("backwards and down", a hanging arm's prior; ``limb_geometry._arm_pole``). Without views
 the default pole stays.
+
+``BodyFitter.refine_trunk`` then refines the pose the tracker publishes: the trunk hung from
+the head cue (``AnalyticConfig.trunk_from_head``) and tilted forward and sideways to the
+silhouettes (``_fit_torso``), kept where it costs less than the plain pose.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
@@ -64,6 +68,8 @@ class FitConfig:
     torso_step_m: float = 0.02
     torso_refine: int = 1              # then halve the step this many times around the best
     torso_shift_cost: float = 0.1      # per cm the torso point moved from its cue
+    refine_trunk: bool = True          # the published pose's trunk hung from the head cue and tilted to the
+                                       # silhouettes where that fits them better (refine_trunk, the tracker)
 
 
 @njit(cache=True, nogil=True)
@@ -166,12 +172,15 @@ def _fit_torso(cues, axes0, swivel, lengths, poles, arm_lim, foot_rest, limb_joi
     """The torso point moved forward then up (``axes0``'s columns; the trunk's up axis turned
     to keep pointing at the head cue) by k * ``step`` (0 < |k| <= n_steps), then ``n_refine``
     halvings around the best, at the cost of ``_fit``'s limit and silhouette terms + w[1] per cm
-    moved; writes the best torso point (3,) and axes (3, 3) and returns its cost."""
+    moved; writes the best torso point (3,) and axes (3, 3) and returns its cost. With the trunk
+    hung from the head (``lengths[10]``, ``AnalyticConfig.trunk_from_head``) a move up would
+    change nothing: it moves forward then right, tilting the trunk about the head."""
     R, ang, pos, rot, points, A, B = _scratch(parents.shape[0])
     c = cues.copy()
     axc = np.empty((3, 3))
     torso0 = cues[C_TORSO].copy()
     right0 = axes0[:, 0].copy()
+    second = 0 if lengths[10] > 0.0 else 2          # the second move's axis: right, or up
     shift = np.zeros(2)
     best = np.inf
     for it in range(n_refine + 1):
@@ -185,7 +194,7 @@ def _fit_torso(cues, axes0, swivel, lengths, poles, arm_lim, foot_rest, limb_joi
                 trial = shift.copy()
                 trial[d] = start + k * st
                 for i in range(3):
-                    c[C_TORSO, i] = torso0[i] + trial[0] * axes0[i, 1] + trial[1] * axes0[i, 2]
+                    c[C_TORSO, i] = torso0[i] + trial[0] * axes0[i, 1] + trial[1] * axes0[i, second]
                 _frame(cues[C_HEAD] - c[C_TORSO], right0, axc)     # (right, forward, up): Z up to the head
                 viol, sil, _ = _evaluate(c, axc, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
                                          offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
@@ -197,6 +206,18 @@ def _fit_torso(cues, axes0, swivel, lengths, poles, arm_lim, foot_rest, limb_joi
                     out_torso[:] = c[C_TORSO]
                     out_axes[:, :] = axc
     return best
+
+
+@njit(cache=True, nogil=True)
+def _pose_cost(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
+               lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w_sil):
+    """Limit violation + ``w_sil`` * silhouette cost of one analytic pose (``_fit_torso``'s terms
+    without the shift)."""
+    R, ang, pos, rot, points, A, B = _scratch(parents.shape[0])
+    viol, sil, _ = _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets,
+                             rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline,
+                             _NO_FEET, w_sil, 0.0, R, ang, pos, rot, points, A, B)
+    return viol + w_sil * sil
 
 
 @dataclass(frozen=True)
@@ -228,6 +249,8 @@ class BodyFitter:
                         float(np.radians(model.lengths.foot_pitch_deg)), CAPSULE_RADII_M)
         self._fixed_args = (*limb_args(model, analytic, elbow_pole_search=False), *model_arrays)
         self._model_args = (*limb_args(model, analytic, elbow_pole_search=config.elbow_silhouette), *model_arrays)
+        self.hung = replace(analytic, trunk_from_head=True)        # refine_trunk's poses
+        self._hung_args = (*limb_args(model, self.hung, elbow_pole_search=config.elbow_silhouette), *model_arrays)
 
     def fit(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
             targets: SilhouetteTargets | None, search_swivel: bool = True, pan_search_deg: float | None = None,
@@ -281,6 +304,38 @@ class BodyFitter:
                           np.array([c.silhouette_weight, c.torso_shift_cost]), n, c.torso_step_m, c.torso_refine,
                           torso, out_axes)
         return torso, out_axes, float(cost)
+
+    def refine_trunk(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray,
+                     targets: SilhouetteTargets) -> tuple[np.ndarray, np.ndarray] | None:
+        """The trunk hung from the head cue and tilted to ``targets``: (cues (6, 3) with the
+        torso point moved, axes (3, 3)) to pose with ``analytic_pose(..., self.hung, ...)``, when
+        that pose costs less (limit violation + silhouette + ``torso_shift_cost``) than the plain
+        pose of ``cues``, ``axes`` (limits and silhouette); None when it does not or there is
+        nothing to see. cues all finite; ``axes``, ``swivel`` as ``fit`` chose them.
+
+        The head cue is 2 mm off the head joint at the median, while the torso cue is the trunk's
+        visible centre, 4-5 cm off its joint and jittering 6-27 mm a frame along the trunk; hung
+        from the head, the trunk takes its height from the head and its tilt from the
+        silhouettes, which the torso cue's line only starts (docs/body.md, "The published
+        trunk hung from the head"). Where the spine bends, the plain pose fits better and stays.
+        """
+        if targets is None or targets.n_views == 0:
+            return None
+        c = self.config
+        cues = np.ascontiguousarray(cues, np.float64)
+        axes = np.ascontiguousarray(axes, np.float64)
+        swivel = np.asarray(swivel, np.float64)
+        plain = _pose_cost(cues, axes, swivel, *self._model_args, *targets.args(), c.silhouette_weight)
+        n = int(round(c.torso_search_m / c.torso_step_m)) if c.torso_step_m > 0 else 0
+        torso, hung_axes = np.empty(3), np.empty((3, 3))
+        cost = _fit_torso(cues, axes, swivel, *self._hung_args, *targets.args(),
+                          np.array([c.silhouette_weight, c.torso_shift_cost]), n, c.torso_step_m, c.torso_refine,
+                          torso, hung_axes)
+        if not cost < plain:
+            return None
+        out = cues.copy()
+        out[C_TORSO] = torso
+        return out, hung_axes
 
     def elbow_views(self, targets: SilhouetteTargets | None) -> tuple:
         """``analytic_pose``'s (views, w_elbow) that measure the elbows on ``targets`` as this

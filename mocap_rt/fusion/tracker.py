@@ -182,7 +182,11 @@ class BodyTracker:
         """The frame's pose (``solve_pose`` with the smoothed torso velocity), kept as the last
         pose and its hips (the next frame's identity input)."""
         root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
-        self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
+        if self.config.fit.refine_trunk and targets is not None:     # the state: the trunk unrefined
+            kept_root, kept_angles, kept = self.solve_with_axes(cues_ik, axes, self._swivel, targets, refine=False)
+        else:
+            kept_root, kept_angles, kept = root, angles, joints
+        self._last_pose, self._hips = (kept_root, kept_angles), kept[_HIPS].copy()
         return root, angles, joints, axes
 
     def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
@@ -191,16 +195,28 @@ class BodyTracker:
         return fill_missing(cues_ik, axes, self._rest_cues)
 
     def solve_with_axes(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None,
-                        targets: SilhouetteTargets | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        targets: SilhouetteTargets | None = None, refine: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Stateless IK for given body axes: (root (3,), angles (J, 3), joints (J, 3)).
 
         Missing hand/foot cues (NaN rows) are filled from the rest pose (``fill_missing``).
         With ``targets`` (views) the elbows are chosen on the silhouettes as the fit chose them
-        (``FitConfig.elbow_silhouette``), so the pose is the one the fit scored.
+        (``FitConfig.elbow_silhouette``), and with ``refine`` (and ``FitConfig.refine_trunk``)
+        the trunk is hung from the head cue and tilted to the silhouettes where that fits them
+        better (``BodyFitter.refine_trunk``): the published pose. The tracker's state (the next
+        frame's predictions, the identity's hips) keeps the unrefined one (``_solve_and_keep``).
         """
         cues_ik = self.fill_missing(cues_ik, axes)
-        root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic, swivel,
-                                     *self._fitter.elbow_views(targets))
+        sw = np.zeros(4) if swivel is None else swivel
+        hung = (self._fitter.refine_trunk(cues_ik, axes, sw, targets)
+                if refine and self.config.fit.refine_trunk and np.isfinite(cues_ik).all() else None)
+        if hung is not None:
+            cues_ik, axes = hung
+            root, angles = analytic_pose(self.model, cues_ik, axes, self._fitter.hung, swivel,
+                                         *self._fitter.elbow_views(targets))
+        else:
+            root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic, swivel,
+                                         *self._fitter.elbow_views(targets))
         if self.config.ik == "ccd":
             angles = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
                                reference=angles, config=self.config.ccd).angles

@@ -115,3 +115,72 @@ def test_without_silhouettes_the_lengths_stay():
     assert fit_bone_lengths(TRUE, []) == TRUE
     no_views = SilhouetteTargets(ring_rig(2).cameras)
     assert fit_bone_lengths(TRUE, [(np.zeros((N_CUES, 3)), np.eye(3), no_views)] * 6) == TRUE
+
+
+# ---------------------------------------------------------------- the published trunk (body.fit.refine_trunk)
+TRUNK_AND_LEGS = [J[n] for n in ("pelvis", "torso", "neck", "hip_l", "hip_r", "knee_l", "knee_r")]
+
+
+def _axes_on(cues, right):
+    """Body axes (right, forward, up) with up on the torso cue -> head cue line (as ``body_axes``)."""
+    up = cues[C_HEAD] - cues[C_TORSO]
+    up /= np.linalg.norm(up)
+    r = right - up * (right @ up)
+    r /= np.linalg.norm(r)
+    return np.column_stack([r, np.cross(up, r), up])
+
+
+def _pose(model, cues, axes, config=None):
+    args = (model, cues, axes) if config is None else (model, cues, axes, config)
+    return forward_kinematics(model, *analytic_pose(*args))[0]
+
+
+def test_the_trunk_hung_from_the_head_puts_the_head_joint_on_its_cue():
+    """``AnalyticConfig.trunk_from_head``: wherever the torso cue lies on the trunk's line, the
+    head joint is on the head cue and the pelvis trunk + neck below it."""
+    from mocap_rt.body.analytic import AnalyticConfig
+
+    model = body_model(TRUE, "paper")
+    hung = AnalyticConfig(trunk_from_head=True)
+    rng = np.random.default_rng(5)
+    rest = model.rest_positions()
+    for _ in range(20):
+        cues = rest[list(CUE_JOINT_INDEX)] + rng.normal(0, 0.02, (N_CUES, 3))
+        cues[C_TORSO] = cues[C_HEAD] - np.array([0, 0, rng.uniform(0.3, 0.5)])     # anywhere below the head
+        axes = _axes_on(cues, np.array([1.0, 0, 0]))
+        got = _pose(model, cues, axes, hung)
+        np.testing.assert_allclose(got[J["head"]], cues[C_HEAD], atol=1e-9)
+        np.testing.assert_allclose(got[J["pelvis"]], cues[C_HEAD] - axes[:, 2] * (TRUE.neck_head_m + TRUE.trunk_m),
+                                   atol=1e-9)
+        plain = _pose(model, cues, axes)           # the default: the trunk on the torso cue
+        np.testing.assert_allclose(plain[J["torso"]], cues[C_TORSO] - axes[:, 2] * TRUE.torso_cue_up_m, atol=1e-9)
+
+
+def test_refine_trunk_recovers_the_trunk_from_a_torso_cue_off_its_joint(frames):
+    """The torso cue 3 cm behind the joint and its height unknown (``torso_cue_up_m`` 0, the
+    truth's 2.5 cm), as perception's visible centre is: the trunk hung from the head cue and
+    tilted to the rendered silhouettes puts the trunk and legs nearer the truth's than the
+    plain pose does, the head joint stays on its cue. A plain pose that is right stays."""
+    lengths = replace(TRUE, torso_cue_up_m=0.0)
+    model = body_model(lengths, "paper")
+    fitter = BodyFitter(model)
+    plain_err, hung_err = [], []
+    for cues, axes, targets, truth in frames:
+        c = cues.copy()
+        c[C_TORSO] -= 0.03 * axes[:, 1]
+        ax = _axes_on(c, axes[:, 0])
+        hung = fitter.refine_trunk(c, ax, np.zeros(4), targets)
+        assert hung is not None
+        got = _pose(model, *hung, fitter.hung)
+        np.testing.assert_allclose(got[J["head"]], c[C_HEAD], atol=1e-9)
+        plain_err.append(np.linalg.norm(_pose(model, c, ax)[TRUNK_AND_LEGS] - truth[TRUNK_AND_LEGS], axis=1).mean())
+        hung_err.append(np.linalg.norm(got[TRUNK_AND_LEGS] - truth[TRUNK_AND_LEGS], axis=1).mean())
+    assert np.mean(hung_err) < 0.5 * np.mean(plain_err), (plain_err, hung_err)      # 70 -> 11 mm
+    # the true lengths and cue: the plain pose is exact, and what refine_trunk returns is no worse
+    true_fit = BodyFitter(body_model(TRUE, "paper"))
+    for cues, axes, targets, truth in frames:
+        hung = true_fit.refine_trunk(cues, axes, np.zeros(4), targets)
+        if hung is not None:
+            got = _pose(body_model(TRUE, "paper"), *hung, true_fit.hung)
+            assert np.linalg.norm(got[TRUNK_AND_LEGS] - truth[TRUNK_AND_LEGS], axis=1).mean() < 0.01
+    assert fitter.refine_trunk(frames[0][0], frames[0][1], np.zeros(4), SilhouetteTargets(ring_rig(6).cameras)) is None
