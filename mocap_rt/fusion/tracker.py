@@ -99,7 +99,8 @@ class BodyTracker:
         self._set_lengths(config.bone_lengths or BoneLengths())
         self._right: np.ndarray | None = None
         self._axes: np.ndarray | None = None      # the last frame's body axes
-        self._last_pose: tuple[np.ndarray, np.ndarray] | None = None
+        self._last_pose: tuple[np.ndarray, np.ndarray] | None = None       # the state: the trunk unrefined
+        self._published: tuple[np.ndarray, np.ndarray] | None = None       # the last published (root, angles)
         self._hips: np.ndarray | None = None      # the last pose's hips (2, 3), for the legs' crossing
         self._pair: tuple[int, int] | None = None
         self._vel: np.ndarray | None = None
@@ -179,14 +180,16 @@ class BodyTracker:
 
     def _solve_and_keep(self, cues_ik: np.ndarray, targets: SilhouetteTargets | None,
                         feet: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The frame's pose (``solve_pose`` with the smoothed torso velocity), kept as the last
-        pose and its hips (the next frame's identity input)."""
+        """The frame's pose (``solve_pose`` with the smoothed torso velocity; its BVH row is the
+        frame's, and the last one's when a frame has no pose), kept unrefined as the last pose
+        and its hips (the next frame's predictions and identity input)."""
         root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
         if self.config.fit.refine_trunk and targets is not None:     # the state: the trunk unrefined
             kept_root, kept_angles, kept = self.solve_with_axes(cues_ik, axes, self._swivel, targets, refine=False)
         else:
             kept_root, kept_angles, kept = root, angles, joints
         self._last_pose, self._hips = (kept_root, kept_angles), kept[_HIPS].copy()
+        self._published = (root, angles)
         return root, angles, joints, axes
 
     def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
@@ -310,7 +313,7 @@ class BodyTracker:
             self._maybe_calibrate(*calib_sample)
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
-        row = (self.bvh_row(*self._last_pose) if self._last_pose is not None
+        row = (self.bvh_row(*self._published) if self._published is not None
                else bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
         self._update_pair(cues_ik)
         self._pending = None if scored is None else (scored, cues_ik, right_before, calib_sample)

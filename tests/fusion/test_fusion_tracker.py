@@ -209,3 +209,32 @@ def test_a_failed_background_fit_keeps_the_estimate(caplog):
     tracker._poll_fitted()
     assert tracker.calibration.fitting is None and tracker.lengths == before
     assert "the estimate stays" in caplog.text
+
+
+def test_the_published_pose_has_its_trunk_refined_and_the_state_keeps_the_plain_one(kick_reversed):
+    """With silhouettes the published joints and BVH row are the refined pose
+    (``BodyFitter.refine_trunk``), the head joint on the fused head cue where the trunk was
+    hung; the tracker's state (predictions, identity) is what ``FitConfig(refine_trunk=False)``
+    gives, so the two trackers' cues and labels stay equal frame by frame."""
+    from mocap_rt.body.fit import FitConfig
+    from mocap_rt.fusion.evaluate import truth_camera_cues
+    from mocap_rt.io.recording import Recording
+    from mocap_rt.names import C_HEAD
+
+    rec = Recording(kick_reversed)
+    truth, names = rec.truth, list(rec.rig.names)
+    widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
+    on = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
+    off = BodyTracker(rec.rig, FusionConfig(fps=rec.fps, fit=FitConfig(refine_trunk=False)))
+    rng_on, rng_off = np.random.default_rng(0), np.random.default_rng(0)
+    hung = 0
+    for f in range(rec.n_frames):
+        a = on.step(f, truth_camera_cues(truth, names, f, f, 1.0, rng_on, widths))
+        b = off.step(f, truth_camera_cues(truth, names, f, f, 1.0, rng_off, widths))
+        np.testing.assert_array_equal(a.cues_ik, b.cues_ik)
+        np.testing.assert_array_equal(a.bvh_frame, on.bvh_row(a.root_pos, a.angles))
+        if not np.allclose(a.joints, b.joints):
+            hung += 1
+            np.testing.assert_allclose(a.joints[JOINT_NAMES.index("head")], a.cues_ik[C_HEAD], atol=1e-9)
+    assert 0 < hung, hung
+    rec.close()
