@@ -305,13 +305,13 @@ class BodyFitter:
                           torso, out_axes)
         return torso, out_axes, float(cost)
 
-    def refine_trunk(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray,
-                     targets: SilhouetteTargets) -> tuple[np.ndarray, np.ndarray] | None:
+    def refine_trunk(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
+                     targets: SilhouetteTargets | None) -> tuple[np.ndarray, np.ndarray] | None:
         """The trunk hung from the head cue and tilted to ``targets``: (cues (6, 3) with the
         torso point moved, axes (3, 3)) to pose with ``analytic_pose(..., self.hung, ...)``, when
         that pose costs less (limit violation + silhouette + ``torso_shift_cost``) than the plain
         pose of ``cues``, ``axes`` (limits and silhouette); None when it does not or there is
-        nothing to see. cues all finite; ``axes``, ``swivel`` as ``fit`` chose them.
+        nothing to see. cues all finite; ``axes``, ``swivel`` as ``fit`` chose them (None: 0).
 
         The head cue is 2 mm off the head joint at the median, while the torso cue is the trunk's
         visible centre, 4-5 cm off its joint and jittering 6-27 mm a frame along the trunk; hung
@@ -324,7 +324,7 @@ class BodyFitter:
         c = self.config
         cues = np.ascontiguousarray(cues, np.float64)
         axes = np.ascontiguousarray(axes, np.float64)
-        swivel = np.asarray(swivel, np.float64)
+        swivel = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
         plain = _pose_cost(cues, axes, swivel, *self._model_args, *targets.args(), c.silhouette_weight)
         n = int(round(c.torso_search_m / c.torso_step_m)) if c.torso_step_m > 0 else 0
         torso, hung_axes = np.empty(3), np.empty((3, 3))

@@ -160,8 +160,8 @@ class BodyTracker:
         With silhouettes (``targets`` with views) the pan and the limb swivels are fitted to
         them, the shoe axes ``feet`` (6, C, 5) (``foot_axis.foot_axes``, labelled like the cues)
         and the joint limits (``BodyFitter``); without, to the limits alone
-        (``refine_pan``, ``refine_swivel``). Returns (root (3,), angles (J, 3) radians,
-        joints (J, 3) metres, axes (3, 3)).
+        (``refine_pan``, ``refine_swivel``). Returns the tracker's own pose, its trunk unrefined:
+        (root (3,), angles (J, 3) radians, joints (J, 3) metres, axes (3, 3)).
         """
         cfg = self.config.analytic
         axes = body_axes(cues_ik, self._right, velocity, cfg)
@@ -175,20 +175,19 @@ class BodyTracker:
                 self._swivel = refine_swivel(self.model, self.fill_missing(cues_ik, axes), axes, self._swivel, cfg)
         self._right = axes[:, 0]
         self._axes = axes
-        root, angles, joints = self.solve_with_axes(cues_ik, axes, self._swivel, targets)
+        root, angles, joints = self.solve_with_axes(cues_ik, axes, self._swivel, targets, refine=False)
         return root, angles, joints, axes
 
     def _solve_and_keep(self, cues_ik: np.ndarray, targets: SilhouetteTargets | None,
                         feet: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The frame's pose (``solve_pose`` with the smoothed torso velocity; its BVH row is the
-        frame's, and the last one's when a frame has no pose), kept unrefined as the last pose
-        and its hips (the next frame's predictions and identity input)."""
+        """The frame's pose (``solve_pose`` with the smoothed torso velocity), kept as the last
+        pose and its hips (the next frame's predictions and identity input); returned, and its
+        BVH row kept for the frames without a pose, with the trunk refined (``_hung_pose``)."""
         root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
-        if self.config.fit.refine_trunk and targets is not None:     # the state: the trunk unrefined
-            kept_root, kept_angles, kept = self.solve_with_axes(cues_ik, axes, self._swivel, targets, refine=False)
-        else:
-            kept_root, kept_angles, kept = root, angles, joints
-        self._last_pose, self._hips = (kept_root, kept_angles), kept[_HIPS].copy()
+        self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
+        hung = self._hung_pose(cues_ik, axes, self._swivel, targets)
+        if hung is not None:
+            root, angles, joints = hung
         self._published = (root, angles)
         return root, angles, joints, axes
 
@@ -204,22 +203,28 @@ class BodyTracker:
 
         Missing hand/foot cues (NaN rows) are filled from the rest pose (``fill_missing``).
         With ``targets`` (views) the elbows are chosen on the silhouettes as the fit chose them
-        (``FitConfig.elbow_silhouette``), and with ``refine`` (and ``FitConfig.refine_trunk``)
-        the trunk is hung from the head cue and tilted to the silhouettes where that fits them
-        better (``BodyFitter.refine_trunk``): the published pose. The tracker's state (the next
-        frame's predictions, the identity's hips) keeps the unrefined one (``_solve_and_keep``).
+        (``FitConfig.elbow_silhouette``), and with ``refine`` the trunk is refined
+        (``_hung_pose``): the published pose. The tracker's state (the next frame's
+        predictions, the identity's hips) keeps the unrefined one (``_solve_and_keep``).
         """
+        hung = self._hung_pose(cues_ik, axes, swivel, targets) if refine else None
+        return hung if hung is not None else self._pose(cues_ik, axes, swivel, targets, self.config.analytic)
+
+    def _hung_pose(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
+                   targets: SilhouetteTargets | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The pose with its trunk hung from the head cue and tilted to the silhouettes, where
+        that fits them better (``FitConfig.refine_trunk``, ``BodyFitter.refine_trunk``); else None."""
+        if not self.config.fit.refine_trunk:
+            return None
+        full = self.fill_missing(cues_ik, axes)
+        hung = self._fitter.refine_trunk(full, axes, swivel, targets) if np.isfinite(full).all() else None
+        return None if hung is None else self._pose(*hung, swivel, targets, self._fitter.hung)
+
+    def _pose(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
+              targets: SilhouetteTargets | None, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(root, angles, joints) of the analytic pose under ``config`` (then CCD with ``ik`` "ccd")."""
         cues_ik = self.fill_missing(cues_ik, axes)
-        sw = np.zeros(4) if swivel is None else swivel
-        hung = (self._fitter.refine_trunk(cues_ik, axes, sw, targets)
-                if refine and self.config.fit.refine_trunk and np.isfinite(cues_ik).all() else None)
-        if hung is not None:
-            cues_ik, axes = hung
-            root, angles = analytic_pose(self.model, cues_ik, axes, self._fitter.hung, swivel,
-                                         *self._fitter.elbow_views(targets))
-        else:
-            root, angles = analytic_pose(self.model, cues_ik, axes, self.config.analytic, swivel,
-                                         *self._fitter.elbow_views(targets))
+        root, angles = analytic_pose(self.model, cues_ik, axes, config, swivel, *self._fitter.elbow_views(targets))
         if self.config.ik == "ccd":
             angles = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
                                reference=angles, config=self.config.ccd).angles
