@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from mocap_rt.geometry.lens import dist8, distort, undistort
 
@@ -40,8 +41,11 @@ def rotation_from_rodrigues(rvec: np.ndarray) -> np.ndarray:
 
 
 def rodrigues_from_rotation(R: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation matrix -> (3,) Rodrigues vector."""
-    return cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].ravel()
+    """(3, 3) rotation matrix -> (3,) Rodrigues vector, exact to rounding at every angle.
+
+    Through scipy's quaternion (largest-component branch): ``cv2.Rodrigues`` takes the axis
+    from R's skew part, which vanishes near pi, and loses up to 7e-7 there."""
+    return Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec()
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:

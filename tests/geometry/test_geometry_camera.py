@@ -89,6 +89,18 @@ def test_projection_matrix_centre_and_transforms_agree():
     np.testing.assert_allclose(rotation_from_rodrigues(rodrigues_from_rotation(cam.R)), cam.R, atol=1e-12)
 
 
+@pytest.mark.parametrize("angle", [np.pi - 1e-9, np.pi - 1e-5, np.pi, 1e-9, 0.0])
+def test_rodrigues_round_trip_is_exact_near_pi_and_zero(angle):
+    """The rig file stores R as its Rodrigues vector; it must come back to rounding at every
+    angle (cv2.Rodrigues takes the axis from R's vanishing skew part near pi)."""
+    axis = np.array([0.3, -0.8, 0.52])
+    axis /= np.linalg.norm(axis)
+    R = rotation_from_rodrigues(axis * angle)
+    rvec = rodrigues_from_rotation(R)
+    np.testing.assert_allclose(rotation_from_rodrigues(rvec), R, rtol=0, atol=2e-15)
+    np.testing.assert_allclose(np.linalg.norm(rvec), angle, rtol=0, atol=1e-12)
+
+
 def test_look_at_centres_the_target_and_keeps_up_up():
     eye, target = np.array([3.0, -1.0, 2.0]), np.array([0.2, 0.1, 0.9])
     R, t = look_at(eye, target)
