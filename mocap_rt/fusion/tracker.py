@@ -10,7 +10,8 @@
 3. filter: a constant-velocity Kalman filter per cue (``fusion.filter``), gating and coasting;
 4. ik: the pan and limb swivels fitted to the silhouettes, the shoe blobs' axes
    (``body.foot_axis``) and the joint limits (``body.fit``), the analytic two-link IK
-   (A.5), optionally refined by the improved CCD (B.7) on the 38-DOF model; then a
+   (A.5), optionally refined by the improved CCD (B.7) on the 38-DOF model, the published
+   pose's trunk hung from the head cue (``fusion.solver.PoseSolver``); then a
    ``FusionResult`` (3D cues, joints, BVH row, timings);
 5. identify: the frame's labelling against its alternatives (hands / feet exchanged, the
    body mirrored), switched on clear evidence (``fusion.identity``) for the frames that
@@ -43,33 +44,29 @@ from dataclasses import replace
 
 import numpy as np
 
-from mocap_rt.body.analytic import analytic_pose, body_axes, pan_angle, refine_pan, refine_swivel
-from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
-from mocap_rt.body.ccd import solve_ccd
-from mocap_rt.body.fit import BodyFitter
+from mocap_rt.body.analytic import body_axes, pan_angle, refine_pan, refine_swivel
+from mocap_rt.body.bvh_export import bvh_frame
 from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
-from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
-from mocap_rt.body.skeleton import END_EFFECTORS, N_JOINTS, BoneLengths, J, body_model
+from mocap_rt.body.skeleton import N_JOINTS, BoneLengths, J
 from mocap_rt.body.visible import CUE_CAPSULES, OFFSET_CAPSULES, part_offsets, part_shapes, pose_visible_parts, rig_rays
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.calibration import LengthCalibration
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.filter import CueFilter
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityState, crossed_legs_cm2, decide,
-                                      feet_together, fill_missing, score_hypotheses, swap_pairs)
+                                      feet_together, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
+from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair,
                                    head_on_trunk, predict_views, reject_duplicates, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
-from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, CUE_INDEX, CUE_JOINT_INDEX, N_CUES
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, N_CUES
 
 log = logging.getLogger(__name__)
 
-_EFFECTOR_CUES = np.array([CUE_INDEX[n] for n in END_EFFECTORS])
-_EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
 # cues whose views may be chosen by consensus (the torso's 2D points are silhouette
 # centres that disagree across views by design; it keeps the plain drop-worst rejection)
 _CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
@@ -111,24 +108,17 @@ class BodyTracker:
 
     # ------------------------------------------------------------------ model
     def _set_lengths(self, lengths: BoneLengths) -> None:
-        self.lengths = lengths
-        self.model = body_model(lengths, "paper")
-        self.model_full = body_model(lengths, "full")
-        self._bvh = bvh_skeleton(self.model)
-        self._rest_cues = self.model.rest_positions()[list(CUE_JOINT_INDEX)]
-        self._rest_cues[C_TORSO, 2] += lengths.torso_cue_up_m      # the cue, not the joint (rest: Z up)
-        self._fitter = BodyFitter(self.model, self.config.analytic, self.config.fit)
+        self.solver = PoseSolver(lengths, self.config)
+
+    @property
+    def lengths(self) -> BoneLengths:
+        return self.solver.lengths
 
     @property
     def bvh_skeleton(self) -> BvhSkeleton:
         """The BVH hierarchy matching ``FusionResult.bvh_frame`` (changes at calibration, and again
         when a background fit hands over its lengths)."""
-        return self._bvh
-
-    @property
-    def pose_model(self):
-        """The model the poses' angles are of (CCD refines on the full one)."""
-        return self.model_full if self.config.ik == "ccd" else self.model
+        return self.solver.bvh
 
     # ------------------------------------------------------------------ 2D -> 3D
     def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -163,77 +153,34 @@ class BodyTracker:
         (``refine_pan``, ``refine_swivel``). Returns the tracker's own pose, its trunk unrefined:
         (root (3,), angles (J, 3) radians, joints (J, 3) metres, axes (3, 3)).
         """
-        cfg = self.config.analytic
+        cfg, solver = self.config.analytic, self.solver
         axes = body_axes(cues_ik, self._right, velocity, cfg)
         if targets is not None and targets.n_views > 0:
-            res = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, self._swivel, targets, feet=axes_only(feet))
+            res = solver.fitter.fit(solver.fill_missing(cues_ik, axes), axes, self._swivel, targets,
+                                    feet=axes_only(feet))
             axes, self._swivel = res.axes, res.swivel
         else:
             if cfg.pan_search_deg > 0:
-                axes = refine_pan(self.model, self.fill_missing(cues_ik, axes), axes, cfg, self._swivel)
+                axes = refine_pan(solver.model, solver.fill_missing(cues_ik, axes), axes, cfg, self._swivel)
             if cfg.swivel_search_deg > 0:
-                self._swivel = refine_swivel(self.model, self.fill_missing(cues_ik, axes), axes, self._swivel, cfg)
+                self._swivel = refine_swivel(solver.model, solver.fill_missing(cues_ik, axes), axes, self._swivel, cfg)
         self._right = axes[:, 0]
         self._axes = axes
-        root, angles, joints = self.solve_with_axes(cues_ik, axes, self._swivel, targets, refine=False)
+        root, angles, joints = solver.plain(cues_ik, axes, self._swivel, targets)
         return root, angles, joints, axes
 
     def _solve_and_keep(self, cues_ik: np.ndarray, targets: SilhouetteTargets | None,
                         feet: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The frame's pose (``solve_pose`` with the smoothed torso velocity), kept as the last
         pose and its hips (the next frame's predictions and identity input); returned, and its
-        BVH row kept for the frames without a pose, with the trunk refined (``_hung_pose``)."""
+        BVH row kept for the frames without a pose, with the trunk refined (``PoseSolver.hung``)."""
         root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
         self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
-        hung = self._hung_pose(cues_ik, axes, self._swivel, targets)
+        hung = self.solver.hung(cues_ik, axes, self._swivel, targets)
         if hung is not None:
             root, angles, joints = hung
         self._published = (root, angles)
         return root, angles, joints, axes
-
-    def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
-        """Cues (6, 3) with missing hands/feet put at the rest pose (arms hanging, legs straight),
-        placed with the body axes at the torso (``identity.fill_missing``)."""
-        return fill_missing(cues_ik, axes, self._rest_cues)
-
-    def solve_with_axes(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None,
-                        targets: SilhouetteTargets | None = None, refine: bool = True
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Stateless IK for given body axes: (root (3,), angles (J, 3), joints (J, 3)).
-
-        Missing hand/foot cues (NaN rows) are filled from the rest pose (``fill_missing``).
-        With ``targets`` (views) the elbows are chosen on the silhouettes as the fit chose them
-        (``FitConfig.elbow_silhouette``), and with ``refine`` the trunk is refined
-        (``_hung_pose``): the published pose. The tracker's state (the next frame's
-        predictions, the identity's hips) keeps the unrefined one (``_solve_and_keep``).
-        """
-        hung = self._hung_pose(cues_ik, axes, swivel, targets) if refine else None
-        return hung if hung is not None else self._pose(cues_ik, axes, swivel, targets, self.config.analytic)
-
-    def _hung_pose(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
-                   targets: SilhouetteTargets | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """The pose with its trunk hung from the head cue and tilted to the silhouettes, where
-        that fits them better (``FitConfig.refine_trunk``, ``BodyFitter.refine_trunk``); else None."""
-        if not self.config.fit.refine_trunk:
-            return None
-        full = self.fill_missing(cues_ik, axes)
-        hung = self._fitter.refine_trunk(full, axes, swivel, targets) if np.isfinite(full).all() else None
-        return None if hung is None else self._pose(*hung, swivel, targets, self._fitter.hung)
-
-    def _pose(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
-              targets: SilhouetteTargets | None, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(root, angles, joints) of the analytic pose under ``config`` (then CCD with ``ik`` "ccd")."""
-        cues_ik = self.fill_missing(cues_ik, axes)
-        root, angles = analytic_pose(self.model, cues_ik, axes, config, swivel, *self._fitter.elbow_views(targets))
-        if self.config.ik == "ccd":
-            angles = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
-                               reference=angles, config=self.config.ccd).angles
-        joints = forward_kinematics(self.pose_model, root, angles)[0]
-        return root, angles, joints
-
-    def bvh_row(self, root: np.ndarray, angles: np.ndarray) -> np.ndarray:
-        """BVH motion row of a pose of this tracker's model (both presets share the hierarchy)."""
-        return bvh_frame(self.pose_model, root, angles)
 
     def finish_calibration(self) -> bool:
         """Estimate the bone lengths now from the frames seen so far (e.g. a clip shorter
@@ -318,8 +265,8 @@ class BodyTracker:
             self._maybe_calibrate(*calib_sample)
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
-        row = (self.bvh_row(*self._published) if self._published is not None
-               else bvh_frame(self.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
+        row = (self.solver.bvh_row(*self._published) if self._published is not None
+               else bvh_frame(self.solver.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
         self._update_pair(cues_ik)
         self._pending = None if scored is None else (scored, cues_ik, right_before, calib_sample)
         timings["total"] = (time.perf_counter() - t0) * 1e3
@@ -389,9 +336,9 @@ class BodyTracker:
         swivel = np.zeros(4)
         targets = result.targets
         if targets is not None and targets.n_views > 0:
-            fit = self._fitter.fit(self.fill_missing(cues_ik, axes), axes, swivel, targets)
+            fit = self.solver.fitter.fit(self.solver.fill_missing(cues_ik, axes), axes, swivel, targets)
             axes, swivel = fit.axes, fit.swivel
-        root, angles, joints = self.solve_with_axes(cues_ik, axes, swivel, targets)
+        root, angles, joints = self.solver.solve(cues_ik, axes, swivel, targets)
         return self._relabelled(result, k, cues_ik, (root, angles, joints, axes, swivel))
 
     def _relabelled(self, result: FusionResult, k: int, cues_ik: np.ndarray, pose: tuple | None = None) -> FusionResult:
@@ -402,7 +349,7 @@ class BodyTracker:
         if pose is None:
             return out
         root, angles, joints, axes, swivel = pose
-        return replace(out, root_pos=root, angles=angles, joints=joints, bvh_frame=self.bvh_row(root, angles),
+        return replace(out, root_pos=root, angles=angles, joints=joints, bvh_frame=self.solver.bvh_row(root, angles),
                        pan_rad=pan_angle(axes), axes=axes, swivel=swivel)
 
     def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None,
@@ -415,7 +362,7 @@ class BodyTracker:
         no_views = targets is None or targets.n_views == 0     # the limits alone cannot see a mirror
         together = feet_together(hips, cues, cfg.feet_together_hips)   # the fit cannot tell the feet apart
         skip = frozenset(k for k, off in ((_MIRROR_ALT, no_views), (_FEET_ALT, together)) if off)
-        costs = score_hypotheses(self._fitter, cues, self._rest_cues, prev_axes, targets, cfg,
+        costs = score_hypotheses(self.solver.fitter, cues, self.solver.rest_cues, prev_axes, targets, cfg,
                                  feet if acquiring else None, measured_elbows=not acquiring, skip=skip)
         if no_views:
             costs[1 + _MIRROR_ALT] = np.inf
@@ -461,7 +408,7 @@ class BodyTracker:
             speed = np.linalg.norm(self.filter.vel[[C_FOOT_L, C_FOOT_R]], axis=1).max()
             shapes = (self.identity.frames >= self.config.identity.acquire_frames
                       and speed < self.config.shoe_shapes_max_speed_mps)
-            parts = pose_visible_parts(self.pose_model, *self._last_pose, *self._rays,
+            parts = pose_visible_parts(self.solver.pose_model, *self._last_pose, *self._rays,
                                        CUE_CAPSULES if shapes else OFFSET_CAPSULES)
             off = part_offsets(parts)
             if shapes:

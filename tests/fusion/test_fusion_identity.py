@@ -345,16 +345,16 @@ def test_skipped_alternatives_are_not_fitted_and_the_rest_are_unchanged():
     from mocap_rt.geometry.rig import ring_rig
 
     tracker = BodyTracker(ring_rig())
-    cues = tracker._rest_cues + [0.3, -0.2, 0.0]
+    cues = tracker.solver.rest_cues + [0.3, -0.2, 0.0]
     cues[FL] += [0.05, 0.1, 0.0]                          # a step: the feet labellings differ
     calls = []
-    fit = tracker._fitter.fit
-    tracker._fitter.fit = lambda *a, **k: calls.append(1) or fit(*a, **k)
+    fit = tracker.solver.fitter.fit
+    tracker.solver.fitter.fit = lambda *a, **k: calls.append(1) or fit(*a, **k)
     cfg = tracker.config.identity
-    full = score_hypotheses(tracker._fitter, cues, tracker._rest_cues, None, None, cfg)
+    full = score_hypotheses(tracker.solver.fitter, cues, tracker.solver.rest_cues, None, None, cfg)
     n_full = len(calls)
     feet, mirror = ALTERNATIVES.index("feet"), ALTERNATIVES.index("mirror")
-    part = score_hypotheses(tracker._fitter, cues, tracker._rest_cues, None, None, cfg, skip=frozenset({feet, mirror}))
+    part = score_hypotheses(tracker.solver.fitter, cues, tracker.solver.rest_cues, None, None, cfg, skip=frozenset({feet, mirror}))
     assert len(calls) - n_full == n_full - 2
     assert np.isnan(part[[1 + feet, 1 + mirror]]).all() and np.isfinite(full).all()
     keep = [0, 1 + ALTERNATIVES.index("hands")]

@@ -232,7 +232,7 @@ def test_the_published_pose_has_its_trunk_refined_and_the_state_keeps_the_plain_
         a = on.step(f, truth_camera_cues(truth, names, f, f, 1.0, rng_on, widths))
         b = off.step(f, truth_camera_cues(truth, names, f, f, 1.0, rng_off, widths))
         np.testing.assert_array_equal(a.cues_ik, b.cues_ik)
-        np.testing.assert_array_equal(a.bvh_frame, on.bvh_row(a.root_pos, a.angles))
+        np.testing.assert_array_equal(a.bvh_frame, on.solver.bvh_row(a.root_pos, a.angles))
         if not np.allclose(a.joints, b.joints):
             hung += 1
             np.testing.assert_allclose(a.joints[JOINT_NAMES.index("head")], a.cues_ik[C_HEAD], atol=1e-9)

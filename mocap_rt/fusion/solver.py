@@ -1,0 +1,92 @@
+"""The body of one subject: bone lengths -> models, and 3D cues + body axes -> pose.
+
+``PoseSolver`` is stateless: given the frame's cues (6, 3), the body axes and the limb
+swivels it solves the analytic two-link pose (seed digest A.5), optionally refined by the
+improved CCD (B.7) on the 38-DOF model, and the published pose's trunk hung from the head cue
+and tilted to the silhouettes (``BodyFitter.refine_trunk``) where that fits them better. The
+tracker (``fusion.tracker``) owns the state (heading, swivels, filter) and builds a new solver
+when the bone lengths change.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap_rt.body.analytic import analytic_pose
+from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
+from mocap_rt.body.ccd import solve_ccd
+from mocap_rt.body.fit import BodyFitter
+from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.silhouette import SilhouetteTargets
+from mocap_rt.body.skeleton import END_EFFECTORS, BoneLengths, J, body_model
+from mocap_rt.fusion.config import FusionConfig
+from mocap_rt.fusion.identity import fill_missing
+from mocap_rt.names import C_TORSO, CUE_INDEX, CUE_JOINT_INDEX
+
+_EFFECTOR_CUES = np.array([CUE_INDEX[n] for n in END_EFFECTORS])
+_EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
+
+Pose = tuple[np.ndarray, np.ndarray, np.ndarray]       # root (3,), angles (J, 3) rad, joints (J, 3) m
+
+
+class PoseSolver:
+    """Models, rest cues, the silhouette fitter and the pose solve for one set of bone lengths."""
+
+    def __init__(self, lengths: BoneLengths, config: FusionConfig) -> None:
+        self.lengths = lengths
+        self.config = config
+        self.model = body_model(lengths, "paper")
+        self.model_full = body_model(lengths, "full")
+        self.bvh = bvh_skeleton(self.model)
+        self.rest_cues = self.model.rest_positions()[list(CUE_JOINT_INDEX)]
+        self.rest_cues[C_TORSO, 2] += lengths.torso_cue_up_m      # the cue, not the joint (rest: Z up)
+        self.fitter = BodyFitter(self.model, config.analytic, config.fit)
+
+    @property
+    def pose_model(self):
+        """The model the poses' angles are of (CCD refines on the full one)."""
+        return self.model_full if self.config.ik == "ccd" else self.model
+
+    def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
+        """Cues (6, 3) with missing hands/feet put at the rest pose (arms hanging, legs straight),
+        placed with the body axes at the torso (``identity.fill_missing``)."""
+        return fill_missing(cues_ik, axes, self.rest_cues)
+
+    def solve(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None,
+              targets: SilhouetteTargets | None = None) -> Pose:
+        """The published pose for given body axes: the trunk refined (``hung``) where that fits
+        the silhouettes better, else the plain pose. Missing hand/foot cues (NaN rows) are
+        filled from the rest pose; with ``targets`` (views) the elbows are chosen on the
+        silhouettes as the fit chose them (``FitConfig.elbow_silhouette``)."""
+        hung = self.hung(cues_ik, axes, swivel, targets)
+        return hung if hung is not None else self.plain(cues_ik, axes, swivel, targets)
+
+    def plain(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
+              targets: SilhouetteTargets | None) -> Pose:
+        """The pose with the trunk from the torso cue: the tracker's state."""
+        return self._pose(cues_ik, axes, swivel, targets, self.config.analytic)
+
+    def hung(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
+             targets: SilhouetteTargets | None) -> Pose | None:
+        """The pose with its trunk hung from the head cue and tilted to the silhouettes, where
+        that fits them better (``FitConfig.refine_trunk``, ``BodyFitter.refine_trunk``); else None."""
+        if not self.config.fit.refine_trunk:
+            return None
+        full = self.fill_missing(cues_ik, axes)
+        hung = self.fitter.refine_trunk(full, axes, swivel, targets) if np.isfinite(full).all() else None
+        return None if hung is None else self._pose(*hung, swivel, targets, self.fitter.hung)
+
+    def _pose(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
+              targets: SilhouetteTargets | None, config) -> Pose:
+        """(root, angles, joints) of the analytic pose under ``config`` (then CCD with ``ik`` "ccd")."""
+        cues_ik = self.fill_missing(cues_ik, axes)
+        root, angles = analytic_pose(self.model, cues_ik, axes, config, swivel, *self.fitter.elbow_views(targets))
+        if self.config.ik == "ccd":
+            angles = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],
+                               reference=angles, config=self.config.ccd).angles
+        joints = forward_kinematics(self.pose_model, root, angles)[0]
+        return root, angles, joints
+
+    def bvh_row(self, root: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """BVH motion row of a pose of this model (both presets share the hierarchy)."""
+        return bvh_frame(self.pose_model, root, angles)
