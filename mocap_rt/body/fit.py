@@ -70,6 +70,8 @@ class FitConfig:
     torso_shift_cost: float = 0.1      # per cm the torso point moved from its cue
     refine_trunk: bool = True          # the published pose's trunk hung from the head cue and tilted to the
                                        # silhouettes where that fits them better (refine_trunk, the tracker)
+    published_swivel_search_deg: float = 60.0   # the published pose's swivels searched again this far around
+    published_swivel_prior_cost: float = 0.0    # the state's, at this prior (0 = off; fusion.solver)
 
 
 @njit(cache=True, nogil=True)

@@ -2,13 +2,24 @@
 
 ``PoseSolver`` is stateless: given the frame's cues (6, 3), the body axes and the limb
 swivels it solves the analytic two-link pose (seed digest A.5), optionally refined by the
-improved CCD (B.7) on the 38-DOF model, and the published pose's trunk hung from the head cue
-and tilted to the silhouettes (``BodyFitter.refine_trunk``) where that fits them better. The
-tracker (``fusion.tracker``) owns the state (heading, swivels, filter) and builds a new solver
-when the bone lengths change.
+improved CCD (B.7) on the 38-DOF model. The tracker (``fusion.tracker``) owns the state
+(heading, swivels, filter) and builds a new solver when the bone lengths change.
+
+The published pose (``solve``) is refined beyond the state's, in two steps that only the
+silhouettes decide, so that perception, the identity and the calibration, which work on the
+state, are unchanged by them:
+
+1. the elbow and knee swivels searched again, ``FitConfig.published_swivel_search_deg`` around
+   the state's at ``published_swivel_prior_cost`` a degree away from the default pole. The
+   state's search keeps its narrower range and its prior (0.1 a degree), which hold the identity:
+   a weaker prior there flipped clips and lost cues (docs/body.md, "The swivels' prior");
+2. the trunk hung from the head cue and tilted to the silhouettes (``BodyFitter.refine_trunk``)
+   where that fits them better.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -41,6 +52,10 @@ class PoseSolver:
         self.rest_cues = self.model.rest_positions()[list(CUE_JOINT_INDEX)]
         self.rest_cues[C_TORSO, 2] += lengths.torso_cue_up_m      # the cue, not the joint (rest: Z up)
         self.fitter = BodyFitter(self.model, config.analytic, config.fit)
+        fit = config.fit
+        self._swivel_fitter = (BodyFitter(self.model, config.analytic, replace(
+            fit, swivel_search_deg=fit.published_swivel_search_deg, swivel_prior_cost=fit.published_swivel_prior_cost))
+            if fit.published_swivel_search_deg > 0 else None)
 
     @property
     def pose_model(self):
@@ -53,13 +68,31 @@ class PoseSolver:
         return fill_missing(cues_ik, axes, self.rest_cues)
 
     def solve(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None,
-              targets: SilhouetteTargets | None = None) -> Pose:
-        """The published pose for given body axes: the trunk refined (``hung``) where that fits
-        the silhouettes better, else the plain pose. Missing hand/foot cues (NaN rows) are
-        filled from the rest pose; with ``targets`` (views) the elbows are chosen on the
-        silhouettes as the fit chose them (``FitConfig.elbow_silhouette``)."""
+              targets: SilhouetteTargets | None = None, plain: Pose | None = None) -> Pose:
+        """The published pose for given body axes and the state's ``swivel`` (module doc): the
+        swivels searched again and the trunk refined (``hung``) where that fits the silhouettes
+        better, else the plain pose (``plain`` if given: the plain pose of ``swivel``, solved
+        already). Missing hand/foot cues (NaN rows) are filled from the rest pose; with
+        ``targets`` (views) the elbows are chosen on the silhouettes as the fit chose them
+        (``FitConfig.elbow_silhouette``)."""
+        searched = self.published_swivel(cues_ik, axes, swivel, targets)
+        if searched is not None:
+            swivel, plain = searched, None
         hung = self.hung(cues_ik, axes, swivel, targets)
-        return hung if hung is not None else self.plain(cues_ik, axes, swivel, targets)
+        if hung is not None:
+            return hung
+        return plain if plain is not None else self.plain(cues_ik, axes, swivel, targets)
+
+    def published_swivel(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
+                         targets: SilhouetteTargets | None) -> np.ndarray | None:
+        """The swivels (4,) searched again around ``swivel`` on the silhouettes (module doc,
+        step 1), the pan kept; None without views, a missing trunk cue or the search off."""
+        if self._swivel_fitter is None or targets is None or targets.n_views == 0:
+            return None
+        full = self.fill_missing(cues_ik, axes)
+        if not np.isfinite(full).all():
+            return None
+        return self._swivel_fitter.fit(full, axes, swivel, targets, pan_search_deg=0.0, pan_refine=0).swivel
 
     def plain(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
               targets: SilhouetteTargets | None) -> Pose:

@@ -173,12 +173,10 @@ class BodyTracker:
                         feet: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The frame's pose (``solve_pose`` with the smoothed torso velocity), kept as the last
         pose and its hips (the next frame's predictions and identity input); returned, and its
-        BVH row kept for the frames without a pose, with the trunk refined (``PoseSolver.hung``)."""
+        BVH row kept for the frames without a pose, refined (``PoseSolver.solve``)."""
         root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
         self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
-        hung = self.solver.hung(cues_ik, axes, self._swivel, targets)
-        if hung is not None:
-            root, angles, joints = hung
+        root, angles, joints = self.solver.solve(cues_ik, axes, self._swivel, targets, plain=(root, angles, joints))
         self._published = (root, angles)
         return root, angles, joints, axes
 

@@ -215,7 +215,8 @@ def test_the_published_pose_has_its_trunk_refined_and_the_state_keeps_the_plain_
     """With silhouettes the published joints and BVH row are the refined pose
     (``BodyFitter.refine_trunk``), the head joint on the fused head cue where the trunk was
     hung; the tracker's state (predictions, identity) is what ``FitConfig(refine_trunk=False)``
-    gives, so the two trackers' cues and labels stay equal frame by frame."""
+    gives, so the two trackers' cues and labels stay equal frame by frame. The same holds for the
+    published swivels' search (``PoseSolver.published_swivel``, on in ``full``)."""
     from mocap_rt.body.fit import FitConfig
     from mocap_rt.fusion.evaluate import truth_camera_cues
     from mocap_rt.io.recording import Recording
@@ -224,17 +225,22 @@ def test_the_published_pose_has_its_trunk_refined_and_the_state_keeps_the_plain_
     rec = Recording(kick_reversed)
     truth, names = rec.truth, list(rec.rig.names)
     widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
-    on = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
-    off = BodyTracker(rec.rig, FusionConfig(fps=rec.fps, fit=FitConfig(refine_trunk=False)))
-    rng_on, rng_off = np.random.default_rng(0), np.random.default_rng(0)
-    hung = 0
+    trunk_only = FitConfig(published_swivel_search_deg=0.0)
+    on = BodyTracker(rec.rig, FusionConfig(fps=rec.fps, fit=trunk_only))
+    off = BodyTracker(rec.rig, FusionConfig(fps=rec.fps, fit=replace(trunk_only, refine_trunk=False)))
+    full = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
+    rngs = [np.random.default_rng(0) for _ in range(3)]
+    hung = swivelled = 0
     for f in range(rec.n_frames):
-        a = on.step(f, truth_camera_cues(truth, names, f, f, 1.0, rng_on, widths))
-        b = off.step(f, truth_camera_cues(truth, names, f, f, 1.0, rng_off, widths))
+        a, b, c = (t.step(f, truth_camera_cues(truth, names, f, f, 1.0, rng, widths))
+                   for t, rng in zip((on, off, full), rngs))
         np.testing.assert_array_equal(a.cues_ik, b.cues_ik)
-        np.testing.assert_array_equal(a.bvh_frame, on.solver.bvh_row(a.root_pos, a.angles))
+        np.testing.assert_array_equal(c.cues_ik, b.cues_ik)
+        for t, r in ((on, a), (full, c)):
+            np.testing.assert_array_equal(r.bvh_frame, t.solver.bvh_row(r.root_pos, r.angles))
         if not np.allclose(a.joints, b.joints):
             hung += 1
             np.testing.assert_allclose(a.joints[JOINT_NAMES.index("head")], a.cues_ik[C_HEAD], atol=1e-9)
-    assert 0 < hung, hung
+        swivelled += not np.allclose(c.joints, a.joints)
+    assert 0 < hung and 0 < swivelled, (hung, swivelled)
     rec.close()

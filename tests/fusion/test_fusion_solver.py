@@ -1,0 +1,90 @@
+"""The published pose's swivels searched again on the silhouettes (``fusion.solver.PoseSolver``)."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from mocap_rt.body.analytic import analytic_pose
+from mocap_rt.body.fit import FitConfig
+from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.silhouette import SilhouetteTargets, pose_points
+from mocap_rt.body.skeleton import BoneLengths, J, body_model
+from mocap_rt.fusion.config import FusionConfig
+from mocap_rt.fusion.solver import PoseSolver
+from mocap_rt.geometry.rig import ring_rig
+from mocap_rt.names import C_TORSO, CUE_JOINT_INDEX, N_CUES
+from mocap_rt.studio.body_map import POINT_NAMES
+from mocap_rt.studio.body_shape import body_primitives
+from mocap_rt.studio.render import RenderConfig, StudioRenderer
+from studio_silhouettes import silhouette_cues
+
+LENGTHS = BoneLengths()
+MIDDLE = [J[n] for n in ("elbow_l", "elbow_r", "knee_l", "knee_r")]
+# the swivels the subject holds (arm_l, arm_r, leg_l, leg_r): elbows flared out and knees turned,
+# 40-50 deg from the default poles, farther than the state's search reaches in one frame (30)
+SWIVEL = np.radians([45.0, -50.0, -40.0, 40.0])
+
+
+@pytest.fixture(scope="module")
+def frames():
+    """Six rendered poses with the limbs bent and swivelled: cues (6, 3), axes, silhouettes,
+    true joints (J, 3)."""
+    rig = ring_rig(6, size=(640, 480))
+    model = body_model(LENGTHS, "paper")
+    ren = StudioRenderer(rig, config=RenderConfig(noise_sigma_levels=0.0))
+    rng = np.random.default_rng(11)
+    rest = model.rest_positions()
+    out = []
+    for k in range(6):
+        yaw = np.radians(55.0 * k)
+        R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])
+        torso = np.array([0.1 * k - 0.2, 0.05 * k, 1.05])
+        cues = np.array([torso + R @ (rest[j] - rest[J["torso"]]) for j in CUE_JOINT_INDEX])
+        for c, sx in ((1, -1.0), (2, 1.0)):       # hands forward and in: the elbows bent
+            cues[c] = torso + R @ np.array([sx * rng.uniform(0.1, 0.25), rng.uniform(0.25, 0.4), rng.uniform(-0.2, 0.1)])
+        for c, sx in ((3, -1.0), (4, 1.0)):       # feet raised: the knees bent
+            cues[c] = cues[c] + R @ np.array([0.0, rng.uniform(0.05, 0.15), rng.uniform(0.15, 0.3)])
+        root, angles = analytic_pose(model, cues, R, swivel=SWIVEL)
+        pos, rot = forward_kinematics(model, root, angles)
+        pts = np.empty((len(POINT_NAMES), 3))
+        pose_points(pos, rot, np.radians(LENGTHS.foot_pitch_deg), pts)
+        cams = silhouette_cues(ren, body_primitives(pts), k)
+        cues = pos[list(CUE_JOINT_INDEX)].copy()
+        cues[C_TORSO] = torso
+        out.append((cues, R, SilhouetteTargets.from_cues(rig.cameras, cams), pos))
+    return out
+
+
+def _middle_error_mm(pose, truth):
+    return 1000 * float(np.linalg.norm(pose[2][MIDDLE] - truth[MIDDLE], axis=1).mean())
+
+
+def test_the_published_swivels_reach_what_the_state_holds_back(frames):
+    """From the default poles (the state's swivels after a prior that holds them), the published
+    pose finds the subject's flared elbows and turned knees on the silhouettes; the trunk refinement
+    off so that the swivels alone are measured."""
+    config = FusionConfig(fit=FitConfig(refine_trunk=False))
+    solver = PoseSolver(LENGTHS, config)
+    off = PoseSolver(LENGTHS, replace(config, fit=replace(config.fit, published_swivel_search_deg=0.0)))
+    plain_err, published_err = [], []
+    for cues, axes, targets, truth in frames:
+        zero = np.zeros(4)
+        plain = solver.plain(cues, axes, zero, targets)
+        np.testing.assert_array_equal(off.solve(cues, axes, zero, targets)[2], plain[2])   # the search off
+        plain_err.append(_middle_error_mm(plain, truth))
+        published_err.append(_middle_error_mm(solver.solve(cues, axes, zero, targets), truth))
+        # the search starts from the state's swivels: at the subject's, it stays there
+        at_truth = solver.published_swivel(cues, axes, SWIVEL, targets)
+        np.testing.assert_allclose(at_truth, SWIVEL, atol=np.radians(15.0) + 1e-9)
+        assert solver.published_swivel(cues, axes, zero, None) is None       # nothing to see
+    assert np.mean(published_err) < 0.5 * np.mean(plain_err), (plain_err, published_err)
+
+
+def test_the_plain_pose_given_is_the_one_returned_when_nothing_refines_it(frames):
+    """``solve(..., plain=...)``: without views neither refinement runs and the given plain pose
+    comes back as it is (the tracker passes its state's pose, solved once)."""
+    solver = PoseSolver(LENGTHS, FusionConfig())
+    cues, axes, _, _ = frames[0]
+    plain = solver.plain(cues, axes, np.zeros(4), None)
+    assert solver.solve(cues, axes, np.zeros(4), None, plain=plain) is plain
