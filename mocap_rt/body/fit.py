@@ -71,7 +71,8 @@ class FitConfig:
     refine_trunk: bool = True          # the published pose's trunk hung from the head cue and tilted to the
                                        # silhouettes where that fits them better (refine_trunk, the tracker)
     published_swivel_search_deg: float = 60.0   # the published pose's swivels searched again this far around
-    published_swivel_prior_cost: float = 0.0    # the state's, at this prior (0 = off; fusion.solver)
+    published_swivel_prior_cost: float = 0.0    # the state's, at this prior (0 = off; fusion.solver), then
+    published_swivel_refine: int = 2            # the step halved this many times around the best
 
 
 @njit(cache=True, nogil=True)
@@ -257,11 +258,13 @@ class BodyFitter:
     def fit(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
             targets: SilhouetteTargets | None, search_swivel: bool = True, pan_search_deg: float | None = None,
             pan_step_deg: float | None = None, pan_refine: int | None = None,
-            feet: np.ndarray | None = None, measured_elbows: bool = True) -> FitResult:
+            feet: np.ndarray | None = None, measured_elbows: bool = True, swivel_search_deg: float | None = None,
+            swivel_step_deg: float | None = None) -> FitResult:
         """Best pan and swivels for cues (6, 3) (all finite, metres, world) from ``axes``
         (3, 3) and the previous ``swivel`` (4,) radians; ``targets`` None = limits only.
         The pan is searched within +-``pan_search_deg`` in steps of ``pan_step_deg``, then
-        refined ``pan_refine`` times (defaults: the config's). ``feet`` (6, C, N_FOOT_COLS): the
+        refined ``pan_refine`` times; each limb's swivel within +-``swivel_search_deg`` in steps of
+        ``swivel_step_deg`` (defaults: the config's). ``feet`` (6, C, N_FOOT_COLS): the
         measured shoe axes of ``targets``' cameras labelled like ``cues``
         (``foot_axis.foot_axes``); used with ``targets`` only (they carry the projection).
         ``measured_elbows`` False: the fixed elbow pole even with views (``elbow_silhouette``)."""
@@ -282,12 +285,14 @@ class BodyFitter:
         feet2 = np.ascontiguousarray(feet[list(FOOT_CUES)], np.float64) if use_feet else _NO_FEET
         w = np.array([c.silhouette_weight if have else 0.0, c.pan_change_cost, c.swivel_change_cost,
                       c.swivel_prior_cost, c.foot_axis_weight if use_feet else 0.0])
-        n_sw = int(c.swivel_search_deg // c.swivel_step_deg) if (search_swivel and c.swivel_step_deg > 0) else 0
+        sw_deg = c.swivel_search_deg if swivel_search_deg is None else swivel_search_deg
+        sw_step = c.swivel_step_deg if swivel_step_deg is None else swivel_step_deg
+        n_sw = int(sw_deg // sw_step) if (search_swivel and sw_step > 0) else 0
         sw0 = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
         model_args = self._model_args if (have and measured_elbows) else self._fixed_args
         _fit(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64), sw0, *model_args,
              *sil_args, feet2, w, offsets,
-             c.pan_refine if pan_refine is None else pan_refine, n_sw, np.radians(c.swivel_step_deg), out_axes, out_sw,
+             c.pan_refine if pan_refine is None else pan_refine, n_sw, np.radians(sw_step), out_axes, out_sw,
              terms)
         return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]), float(terms[3]))
 

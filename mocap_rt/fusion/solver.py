@@ -10,9 +10,11 @@ silhouettes decide, so that perception, the identity and the calibration, which 
 state, are unchanged by them:
 
 1. the elbow and knee swivels searched again, ``FitConfig.published_swivel_search_deg`` around
-   the state's at ``published_swivel_prior_cost`` a degree away from the default pole. The
-   state's search keeps its narrower range and its prior (0.1 a degree), which hold the identity:
-   a weaker prior there flipped clips and lost cues (docs/body.md, "The swivels' prior");
+   the state's at ``published_swivel_prior_cost`` a degree away from the default pole, then
+   refined by ``published_swivel_refine`` halvings of the step around the best, on the
+   silhouettes and limits alone. The state's search keeps its narrower range and its prior (0.1
+   a degree), which hold the identity: a weaker prior there flipped clips and lost cues
+   (docs/body.md, "The swivels' prior");
 2. the trunk hung from the head cue and tilted to the silhouettes (``BodyFitter.refine_trunk``)
    where that fits them better.
 """
@@ -52,10 +54,12 @@ class PoseSolver:
         self.rest_cues = self.model.rest_positions()[list(CUE_JOINT_INDEX)]
         self.rest_cues[C_TORSO, 2] += lengths.torso_cue_up_m      # the cue, not the joint (rest: Z up)
         self.fitter = BodyFitter(self.model, config.analytic, config.fit)
-        fit = config.fit
+        fit, on = config.fit, config.fit.published_swivel_search_deg > 0
         self._swivel_fitter = (BodyFitter(self.model, config.analytic, replace(
             fit, swivel_search_deg=fit.published_swivel_search_deg, swivel_prior_cost=fit.published_swivel_prior_cost))
-            if fit.published_swivel_search_deg > 0 else None)
+            if on else None)
+        self._swivel_refiner = (BodyFitter(self.model, config.analytic, replace(
+            fit, swivel_prior_cost=0.0, swivel_change_cost=0.0)) if on and fit.published_swivel_refine > 0 else None)
 
     @property
     def pose_model(self):
@@ -85,14 +89,21 @@ class PoseSolver:
 
     def published_swivel(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
                          targets: SilhouetteTargets | None) -> np.ndarray | None:
-        """The swivels (4,) searched again around ``swivel`` on the silhouettes (module doc,
-        step 1), the pan kept; None without views, a missing trunk cue or the search off."""
+        """The swivels (4,) searched again around ``swivel`` on the silhouettes, then refined
+        (module doc, step 1), the pan kept; None without views, a missing trunk cue or the search
+        off."""
         if self._swivel_fitter is None or targets is None or targets.n_views == 0:
             return None
         full = self.fill_missing(cues_ik, axes)
         if not np.isfinite(full).all():
             return None
-        return self._swivel_fitter.fit(full, axes, swivel, targets, pan_search_deg=0.0, pan_refine=0).swivel
+        sw = self._swivel_fitter.fit(full, axes, swivel, targets, pan_search_deg=0.0, pan_refine=0).swivel
+        step = self.config.fit.swivel_step_deg
+        for _ in range(self.config.fit.published_swivel_refine):
+            step /= 2
+            sw = self._swivel_refiner.fit(full, axes, sw, targets, pan_search_deg=0.0, pan_refine=0,
+                                          swivel_search_deg=step, swivel_step_deg=step).swivel
+        return sw
 
     def plain(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
               targets: SilhouetteTargets | None) -> Pose:
