@@ -43,7 +43,6 @@ from mocap_rt.io.files import atomic_write_text
 PACKAGE_DIR = Path(__file__).resolve().parent
 STAMP_NAME = "mocap_rt-numba-kernels.json"
 DEFAULT_CLIP = "bvh/cmu/cmu_02_01_walk.bvh"     # under $MOCAP_RT_DATA
-DEFAULT_DATA = PACKAGE_DIR.parent.parent / "shared" / "data"    # without $MOCAP_RT_DATA (README)
 WARM_SIZE = (320, 240)                          # image size of the warm-up scene (px)
 WARM_SECONDS = 1.0                              # frames of it: perception tracks, fusion predicts
 WARM_CAMERAS = 6
@@ -179,8 +178,9 @@ def default_motion() -> Path | None:
     project's data beside the checkout (``../shared/data``, where the benches read it): a bench
     run from a plain shell had warmed the cache on synthetic frames and stamped it warm, and the
     service run after it compiled the rest in its nodes (69 of 1801 frames lost at its start)."""
-    root = os.environ.get("MOCAP_RT_DATA") or str(DEFAULT_DATA)
-    p = Path(root) / DEFAULT_CLIP
+    from mocap_rt.studio.procedural import data_root
+
+    p = data_root() / DEFAULT_CLIP
     return p if p.is_file() else None
 
 

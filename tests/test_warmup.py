@@ -56,7 +56,9 @@ def test_without_the_variable_the_data_beside_the_checkout_counts(tmp_path, monk
     """No ``MOCAP_RT_DATA``: the clip is looked for in the project's data (``../shared/data``,
     where the benches read it), so a synthetic warm-up there is cold too."""
     monkeypatch.delenv("MOCAP_RT_DATA", raising=False)
-    monkeypatch.setattr(warmup, "DEFAULT_DATA", tmp_path)
+    from mocap_rt.studio import procedural
+
+    monkeypatch.setattr(procedural, "DEFAULT_DATA", tmp_path)
     assert warmup.default_motion() is None
     clip = tmp_path / warmup.DEFAULT_CLIP
     clip.parent.mkdir(parents=True)

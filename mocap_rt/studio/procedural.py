@@ -49,10 +49,13 @@ GENERATOR_VERSION = 2
 PELVIS_TILT_FRAC = 0.4    # share of the trunk's forward bend taken by the pelvis (the rest: 3 x 0.2)
 
 
+DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"    # beside the checkout (README)
+
+
 def data_root() -> Path:
-    """The shared data directory: ``$MOCAP_RT_DATA`` or ``../shared/data`` beside the repo."""
-    repo = Path(__file__).resolve().parents[2]
-    return Path(os.environ.get("MOCAP_RT_DATA", repo.parent / "shared" / "data")).resolve()
+    """The shared data directory: ``$MOCAP_RT_DATA`` (when set and not empty) or
+    ``DEFAULT_DATA``, ``../shared/data`` beside the repo."""
+    return Path(os.environ.get("MOCAP_RT_DATA") or DEFAULT_DATA).resolve()
 
 
 @lru_cache(maxsize=4)
