@@ -28,6 +28,7 @@ import numpy as np
 from mocap_rt.markers.joint_centres import METHODS
 from mocap_rt.markers.rigid import fit_rigid_segment, select_markers
 from mocap_rt.markers.synthetic import simulate_joint
+from mocap_rt.studio.procedural import data_root
 
 HERE = Path(__file__).resolve().parent
 BASELINES = ("score", "sphere", "obrien")
@@ -48,10 +49,6 @@ REAL_TRIALS = (
     ("biobuddy_vicon_P01_lightweight/Test_func_rknee.c3d", "biobuddy_vicon"),
 )
 MIN_ROM_DEG = 20.0  # joints moving less than this are listed but left out of the method ranking
-
-
-def _data_root() -> Path:
-    return Path(os.environ.get("MOCAP_RT_DATA", HERE.parent.parent / "shared" / "data")).resolve()
 
 
 def run_synthetic(n_trials: int, n_frames: int, noise_levels: list[float], methods: list[str], seed: int):
@@ -158,7 +155,7 @@ def run_real(methods: list[str], out_dir: Path) -> None:
     from mocap_rt.markers.segments import load_segments, shipped_segments_path
     from mocap_rt.markers.trial import joint_centres_for_trial
 
-    root = _data_root() / "markers"
+    root = data_root() / "markers"
     print("\n(b) real functional trials: bone length mean ± std over the trial (mm; std lower is better) for bones\n"
           "    between chained joints (hip-knee, knee-ankle, ...) with at least one end moving >= "
           f"{MIN_ROM_DEG:.0f} deg; rigid preprocessing on")
@@ -294,7 +291,7 @@ def run_speed(n_runs: int) -> None:
             print(f"  synthetic 1085 frames, method {method:<7} wall median {statistics.median(times):.2f} s "
                   f"(min {min(times):.2f}), CPU median {statistics.median(cpu):.2f} s over {n_runs} runs   "
                   f"target <= 2 s: {'met' if statistics.median(times) <= 2.0 else 'MISSED'}")
-    real = _data_root() / "markers" / REAL_TRIALS[0][0]
+    real = data_root() / "markers" / REAL_TRIALS[0][0]
     if real.is_file():
         from mocap_rt.markers.segments import shipped_segments_path
 

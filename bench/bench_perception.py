@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap_rt.names import C_TORSO, CUE_NAMES, LR_PAIRS, N_CUES
+from mocap_rt.studio.procedural import data_root
 
 _LIMBS_HEAD = np.arange(N_CUES) != C_TORSO     # every cue but the torso
 
@@ -51,10 +51,6 @@ FLICKER = 0.05
 CROSS_PX_640 = 30.0
 CROSS_FRAMES = 3
 SWAP_MARGIN_PX_640 = 6.0
-
-
-def data_root() -> Path:
-    return Path(os.environ.get("MOCAP_RT_DATA", REPO.parent / "shared" / "data")).resolve()
 
 
 def shared_clips() -> list[Path]:

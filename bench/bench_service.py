@@ -30,11 +30,8 @@ TARGET_P99_MS = 15.0
 SEARCH_FPS = (45.0, 60.0, 75.0, 90.0, 120.0)
 
 
-def data_root() -> Path:
-    return Path(os.environ.get("MOCAP_RT_DATA", REPO.parent / "shared" / "data")).resolve()
-
-
 def ensure_recording(path: Path) -> Path:
+    from mocap_rt.studio.procedural import data_root
     from mocap_rt.studio.synth import make_rig, synthesize
 
     if not (path / "recording.toml").is_file():

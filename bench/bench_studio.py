@@ -11,7 +11,6 @@ Usage: ``python -m bench studio`` (or ``python -m bench.bench_studio --quick``).
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import statistics
 import sys
@@ -24,6 +23,7 @@ import numpy as np
 
 from mocap_rt.studio.body_map import body_motion
 from mocap_rt.studio.body_shape import body_primitives
+from mocap_rt.studio.procedural import data_root
 from mocap_rt.studio.render import StudioRenderer
 from mocap_rt.studio.synth import make_rig, synthesize
 
@@ -32,13 +32,9 @@ TARGET_S = 90.0
 CODECS = (("MJPG", ".avi"), ("XVID", ".avi"), ("mp4v", ".mp4"), ("FFV1", ".avi"))
 
 
-def _data_dir() -> Path:
-    return Path(os.environ.get("MOCAP_RT_DATA", REPO.parent / "shared" / "data")).resolve()
-
-
 def _clip() -> Path:
     # 22.9 s of jumps and turns: long enough for 10 s, lots of occlusion
-    return _data_dir() / "bvh" / "cmu" / "cmu_01_01_playground_forward_jumps.bvh"
+    return data_root() / "bvh" / "cmu" / "cmu_01_01_playground_forward_jumps.bvh"
 
 
 def bench_synth(size: tuple[int, int], seconds: float, workdir: Path) -> dict:

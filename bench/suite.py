@@ -20,6 +20,8 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+from mocap_rt.studio.procedural import data_root
+
 REPO = Path(__file__).resolve().parents[1]
 # MOCAP_RT_SUITE_CACHE: share the renders between worktrees (they are deterministic)
 CACHE = Path(os.environ.get("MOCAP_RT_SUITE_CACHE", REPO / "bench" / "out" / "suite"))
@@ -32,10 +34,6 @@ PROCEDURAL = ("sidestep", "crouch", "arms_overhead", "hands_cross_face", "jump",
 # procedural clips with contacts and crossings (the perception hard cases, issue 12)
 CONTACT = ("hands_cross_face", "clap", "hands_on_head", "hand_behind_head", "arms_overhead",
            "crouch_hands_to_feet", "feet_cross", "jumping_jacks")
-
-
-def data_root() -> Path:
-    return Path(os.environ.get("MOCAP_RT_DATA", REPO.parent / "shared" / "data")).resolve()
 
 
 @dataclass(frozen=True)

@@ -5,15 +5,13 @@ from pathlib import Path
 
 import pytest
 
+from mocap_rt.studio.procedural import data_root
+
 REPO = Path(__file__).resolve().parents[1]
 SERVICE_TESTS = "service clusters"  # the xdist work unit of the modules that start whole clusters:
 SERVICE_MODULES = tuple(f"tests/nodes/test_nodes_{m}.py::" for m in (
     "faults", "forged", "gst", "lifecycle", "netns", "replay_run", "service", "viewer_web"))
 LIBRARY_NICENESS = 10               # of a library test beside a service cluster (``make test``, -n 2)
-
-
-def data_root() -> Path:
-    return Path(os.environ.get("MOCAP_RT_DATA", REPO.parent / "shared" / "data")).resolve()
 
 
 @pytest.fixture(scope="session")
