@@ -303,11 +303,17 @@ class BodyFitter:
         violation + silhouette + ``torso_shift_cost``); cues (6, 3) all finite, ``axes`` and
         ``swivel`` as ``fit`` chose them. What ``body.calibrate`` scores a subject's
         proportions with."""
+        return self._torso_search(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64),
+                                  np.asarray(swivel, np.float64), self._model_args, targets)
+
+    def _torso_search(self, cues: np.ndarray, axes: np.ndarray, swivel: np.ndarray, model_args: tuple,
+                      targets: SilhouetteTargets) -> tuple[np.ndarray, np.ndarray, float]:
+        """``_fit_torso`` under this config's search (the plain body's or the hung one's
+        ``model_args``): (torso point (3,), axes (3, 3), cost)."""
         c = self.config
         n = int(round(c.torso_search_m / c.torso_step_m)) if c.torso_step_m > 0 else 0
         torso, out_axes = np.empty(3), np.empty((3, 3))
-        cost = _fit_torso(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64),
-                          np.asarray(swivel, np.float64), *self._model_args, *targets.args(),
+        cost = _fit_torso(cues, axes, swivel, *model_args, *targets.args(),
                           np.array([c.silhouette_weight, c.torso_shift_cost]), n, c.torso_step_m, c.torso_refine,
                           torso, out_axes)
         return torso, out_axes, float(cost)
@@ -328,16 +334,11 @@ class BodyFitter:
         """
         if targets is None or targets.n_views == 0:
             return None
-        c = self.config
         cues = np.ascontiguousarray(cues, np.float64)
         axes = np.ascontiguousarray(axes, np.float64)
         swivel = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
-        plain = _pose_cost(cues, axes, swivel, *self._model_args, *targets.args(), c.silhouette_weight)
-        n = int(round(c.torso_search_m / c.torso_step_m)) if c.torso_step_m > 0 else 0
-        torso, hung_axes = np.empty(3), np.empty((3, 3))
-        cost = _fit_torso(cues, axes, swivel, *self._hung_args, *targets.args(),
-                          np.array([c.silhouette_weight, c.torso_shift_cost]), n, c.torso_step_m, c.torso_refine,
-                          torso, hung_axes)
+        plain = _pose_cost(cues, axes, swivel, *self._model_args, *targets.args(), self.config.silhouette_weight)
+        torso, hung_axes, cost = self._torso_search(cues, axes, swivel, self._hung_args, targets)
         if not cost < plain:
             return None
         out = cues.copy()
