@@ -36,7 +36,7 @@ from mocap_rt.fusion.views import CUE_RADII_M, RigProjector, predict_views
 from mocap_rt.geometry.rig import desktop_rig, ring_rig
 from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, CUE_JOINT_INDEX, JOINT_NAMES
 from mocap_rt.names import J as JOINT_INDEX
-from mocap_rt.studio.procedural import data_root
+from mocap_rt.shared_data import data_root
 
 REPO = Path(__file__).resolve().parents[1]
 TARGETS = {"cue_median_mm": 10.0, "cue_p95_mm": 30.0, "mpjpe_mm": 30.0, "fusion_ms": 1.0}

@@ -18,14 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_service import REPO
+from bench.bench_service import REPO, data_root
 
 CLIP = "bvh/cmu/cmu_02_01_walk.bvh"
 SPEED = 0.2         # 6 fps: a 167 ms deadline (fusion presumes a camera dead after 0.25 s)
 
 
 def recording(path: Path, codec: str) -> Path:
-    from mocap_rt.studio.procedural import data_root
     from mocap_rt.studio.synth import make_rig, synthesize
 
     if not (path / "recording.toml").is_file():

@@ -28,7 +28,7 @@ import numpy as np
 from mocap_rt.markers.joint_centres import METHODS
 from mocap_rt.markers.rigid import fit_rigid_segment, select_markers
 from mocap_rt.markers.synthetic import simulate_joint
-from mocap_rt.studio.procedural import data_root
+from mocap_rt.shared_data import data_root
 
 HERE = Path(__file__).resolve().parent
 BASELINES = ("score", "sphere", "obrien")

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap_rt.names import C_TORSO, CUE_NAMES, LR_PAIRS, N_CUES
-from mocap_rt.studio.procedural import data_root
+from mocap_rt.shared_data import data_root
 
 _LIMBS_HEAD = np.arange(N_CUES) != C_TORSO     # every cue but the torso
 

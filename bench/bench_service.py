@@ -23,6 +23,8 @@ import sys
 import time
 from pathlib import Path
 
+from mocap_rt.shared_data import data_root
+
 REPO = Path(__file__).resolve().parents[1]
 CLIP = "bvh/cmu/cmu_02_01_walk.bvh"
 TARGET_FPS = 30.0
@@ -31,7 +33,6 @@ SEARCH_FPS = (45.0, 60.0, 75.0, 90.0, 120.0)
 
 
 def ensure_recording(path: Path) -> Path:
-    from mocap_rt.studio.procedural import data_root
     from mocap_rt.studio.synth import make_rig, synthesize
 
     if not (path / "recording.toml").is_file():

@@ -21,9 +21,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mocap_rt.shared_data import data_root
 from mocap_rt.studio.body_map import body_motion
 from mocap_rt.studio.body_shape import body_primitives
-from mocap_rt.studio.procedural import data_root
 from mocap_rt.studio.render import StudioRenderer
 from mocap_rt.studio.synth import make_rig, synthesize
 

@@ -20,7 +20,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from mocap_rt.studio.procedural import data_root
+from mocap_rt.shared_data import data_root
 
 REPO = Path(__file__).resolve().parents[1]
 # MOCAP_RT_SUITE_CACHE: share the renders between worktrees (they are deterministic)

@@ -39,6 +39,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from mocap_rt.io.files import atomic_write_text
+from mocap_rt.shared_data import data_root
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 STAMP_NAME = "mocap_rt-numba-kernels.json"
@@ -178,8 +179,6 @@ def default_motion() -> Path | None:
     project's data beside the checkout (``../shared/data``, where the benches read it): a bench
     run from a plain shell had warmed the cache on synthetic frames and stamped it warm, and the
     service run after it compiled the rest in its nodes (69 of 1801 frames lost at its start)."""
-    from mocap_rt.studio.procedural import data_root
-
     p = data_root() / DEFAULT_CLIP
     return p if p.is_file() else None
 

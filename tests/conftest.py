@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from mocap_rt.studio.procedural import data_root
+from mocap_rt.shared_data import data_root
 
 REPO = Path(__file__).resolve().parents[1]
 SERVICE_TESTS = "service clusters"  # the xdist work unit of the modules that start whole clusters:

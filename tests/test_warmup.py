@@ -1,6 +1,8 @@
 """The kernel-cache stamp of ``mocap_rt.warmup``: what it depends on, where it lives."""
 
 import json
+import subprocess
+import sys
 
 from mocap_rt import warmup
 
@@ -56,9 +58,9 @@ def test_without_the_variable_the_data_beside_the_checkout_counts(tmp_path, monk
     """No ``MOCAP_RT_DATA``: the clip is looked for in the project's data (``../shared/data``,
     where the benches read it), so a synthetic warm-up there is cold too."""
     monkeypatch.delenv("MOCAP_RT_DATA", raising=False)
-    from mocap_rt.studio import procedural
+    from mocap_rt import shared_data
 
-    monkeypatch.setattr(procedural, "DEFAULT_DATA", tmp_path)
+    monkeypatch.setattr(shared_data, "DEFAULT_DATA", tmp_path)
     assert warmup.default_motion() is None
     clip = tmp_path / warmup.DEFAULT_CLIP
     clip.parent.mkdir(parents=True)
@@ -93,3 +95,12 @@ def test_a_warm_up_in_a_process_that_already_compiled_kernels_refuses(tmp_path):
     assert "warm-up must run in a fresh process (`python -m mocap_rt.warmup`)" in r.stderr
     assert "undistort_point" in r.stderr
     assert not (tmp_path / "cache" / warmup.STAMP_NAME).exists()
+
+
+def test_the_cache_check_imports_no_numba():
+    """``is_warm`` and the data's clip it asks for (``default_motion``) stay cheap: every node and
+    the launcher call them at start-up (a check through ``studio.procedural`` took 1.1 s)."""
+    code = ("import sys; from mocap_rt import warmup; warmup.is_warm(); warmup.default_motion(); "
+            "print('numba' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
+    assert out.stdout.strip() == "False", out

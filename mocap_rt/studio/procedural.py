@@ -20,7 +20,6 @@ world = ``AXES @ file`` = (x, -z, y), so at rest the subject faces world -Y.
 
 from __future__ import annotations
 
-import os
 import zlib
 import warnings
 from dataclasses import dataclass
@@ -32,6 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from mocap_rt.body.analytic import _two_link
 from mocap_rt.io.bvh import BvhClip, BvhSkeleton, joint_transforms, read_bvh
+from mocap_rt.shared_data import data_root
 from mocap_rt.studio.body_map import POINT_NAMES, find_map, map_points
 
 # The skeleton every procedural clip uses (relative to the shared data root).
@@ -47,15 +47,6 @@ FOOT_PITCH_DEG = -10.0
 # Bumped when the generator changes what a (name, seed) produces (cached renders key on it).
 GENERATOR_VERSION = 2
 PELVIS_TILT_FRAC = 0.4    # share of the trunk's forward bend taken by the pelvis (the rest: 3 x 0.2)
-
-
-DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"    # beside the checkout (README)
-
-
-def data_root() -> Path:
-    """The shared data directory: ``$MOCAP_RT_DATA`` (when set and not empty) or
-    ``DEFAULT_DATA``, ``../shared/data`` beside the repo."""
-    return Path(os.environ.get("MOCAP_RT_DATA") or DEFAULT_DATA).resolve()
 
 
 @lru_cache(maxsize=4)
