@@ -84,9 +84,11 @@ STAGES = (("w_perceive_max", "perception of the slowest camera (duration)"),
           ("w_start", "its processing started"),
           ("w_pub_min", "first cues published"),
           ("w_pub", "last cues published"),
+          ("f_first_cue", "first cues received by fusion"),
           ("f_last_cue", "last cues received by fusion"),
           ("f_ready", "fusion started (frame complete)"),
           ("step_ms", "BodyTracker.fit_frame (duration; the identity runs after the pose)"),
+          ("step_cpu_ms", "  its CPU time (the rest: waiting for a core)"),
           ("predict_ms", "BodyTracker.predict (duration)"),
           ("pred_pub_ms", "6 predictions published (duration)"))
 
@@ -112,6 +114,27 @@ def stage_table(s: dict) -> str:
             lines.append(f"| {label} | {st[key]['p50']:.2f} | {st[key]['p99']:.2f} |")
     lat = s["latency_ms"]
     lines.append(f"| pose published (= latency) | {lat['p50']:.2f} | {lat['p99']:.2f} |")
+    return "\n".join(lines)
+
+
+RESTART_FRAMES = 6      # a replay loop's first frames: the person jumps from the clip's end to its start
+
+
+def slowest_summary(s: dict, n_rec: int) -> str:
+    """Where the run's slowest poses (``slowest_poses``, the top 1 %) fall: how many in the
+    first ``RESTART_FRAMES`` of a replay loop of ``n_rec`` frames, and their stages."""
+    rows = s.get("slowest_poses", [])
+    if not rows:
+        return "no poses"
+    loops = s["frames_triggered"] / n_rec
+    restart = [r for r in rows if r["frame"] % n_rec < RESTART_FRAMES]
+    lines = [f"slowest {len(rows)} poses: {len(restart)} in the first {RESTART_FRAMES} frames of a replay loop "
+             f"({n_rec}-frame recording, {loops:.1f} loops; those frames are "
+             f"{100 * min(1.0, RESTART_FRAMES / n_rec):.1f} % of the run)",
+             "| frame | loop frame | latency | perception sum | slowest camera | fit_frame |", "|---|---|---|---|---|---|"]
+    for r in rows[:10]:
+        lines.append(f"| {r['frame']} | {r['frame'] % n_rec} | {r['latency_ms']:.1f} | {r.get('w_perceive_sum', float('nan')):.1f} "
+                     f"| {r.get('w_perceive_max', float('nan')):.1f} | {r.get('step_ms', float('nan')):.1f} |")
     return "\n".join(lines)
 
 
@@ -149,6 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     results["30fps"] = s = run_once(rec, TARGET_FPS, args.duration, logs / "30", args.nice, args.rt_priority)
     print(_row("30 fps", s), flush=True)
     print(stage_table(s) + "\n", flush=True)
+    from mocap_rt.io.recording import Recording
+
+    print(slowest_summary(s, Recording(rec).n_frames) + "\n", flush=True)
     floor = compute_floor_ms(s)
     print(f"compute floor {floor:.2f} ms = {floor / ys:.1f} x yardstick (6 cameras' CPU p50 / {os.cpu_count()} cores + "
           f"fusion step + predict p50); latency p99 {s['latency_ms']['p99']:.1f} ms = {s['latency_ms']['p99'] / floor:.2f} "

@@ -91,8 +91,8 @@ def warm_up(rig, fps: float) -> float:
 
 def stage_timings(pf: PendingFrame, t_ready_ns: int) -> dict[str, float]:
     """The critical path of one frame, ms after its trigger: the slowest camera's trigger
-    receipt / processing start / cues publication (``w_*``), the last answer's arrival here
-    (``f_last_cue``) and the start of fusion (``f_ready``)."""
+    receipt / processing start / cues publication (``w_*``), the first and last answers' arrival
+    here (``f_first_cue``, ``f_last_cue``) and the start of fusion (``f_ready``)."""
     out: dict[str, float] = {}
     for key in ("w_recv", "w_start", "w_pub", "w_cpu"):
         vals = [float(c.timings_ms[key]) for c in pf.cues.values() if key in c.timings_ms]
@@ -110,6 +110,8 @@ def stage_timings(pf: PendingFrame, t_ready_ns: int) -> dict[str, float]:
         vals = [float(c.timings_ms[key]) for c in pf.cues.values() if key in c.timings_ms]
         if vals:
             out[("p_" + key) if key != "w_cpu" else "w_cpu_mean"] = sum(vals) / len(vals)
+    if pf.t_first_ns:
+        out["f_first_cue"] = (pf.t_first_ns - pf.t_trigger_mono_ns) / 1e6
     if pf.t_last_ns:
         out["f_last_cue"] = (pf.t_last_ns - pf.t_trigger_mono_ns) / 1e6
     out["f_ready"] = (t_ready_ns - pf.t_trigger_mono_ns) / 1e6
@@ -128,10 +130,10 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
     predictions go first, else the next trigger could overtake them.
     """
     t_ready_ns = time.monotonic_ns()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.thread_time()
     try:
         result = tracker.fit_frame(pf.frame, pf.cues)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.thread_time()
         predictions = None
         if not pose_first:
             result = tracker.identify_frame(result)     # a switch shows in this very pose
@@ -146,7 +148,7 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
     t3 = time.perf_counter()
     used = tuple(c for c in rig_cameras if c in pf.cues)
     missing = tuple(c for c in rig_cameras if c not in pf.cues)
-    timings = {"step_ms": (t1 - t0) * 1e3, "gather_ms": (t_ready_ns - pf.t_trigger_mono_ns) / 1e6}
+    timings = {"step_ms": (t1 - t0) * 1e3, "step_cpu_ms": (c1 - c0) * 1e3, "gather_ms": (t_ready_ns - pf.t_trigger_mono_ns) / 1e6}
     if predictions is not None:
         timings.update(predict_ms=(t2 - t1) * 1e3, pred_pub_ms=(t3 - t2) * 1e3)
     timings.update(stage_timings(pf, t_ready_ns))

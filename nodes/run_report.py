@@ -37,6 +37,19 @@ def status_line(launcher) -> str:
             f"node drops {drops}  decode drops {decode}  cameras alive {len(cams)}/{n_cams}")
 
 
+SLOWEST_SHARE = 0.01        # the share of the poses ``slowest_poses`` lists (at least SLOWEST_MIN)
+SLOWEST_MIN = 5
+
+
+def slowest_poses(events) -> list[dict]:
+    """The slowest ``SLOWEST_SHARE`` of the poses (trigger -> published), slowest first: frame,
+    latency and stage timings (ms), so that a p99 can be traced to the frames that make it."""
+    n = max(SLOWEST_MIN, math.ceil(SLOWEST_SHARE * len(events)))
+    worst = sorted(events, key=lambda p: p.latency_ms, reverse=True)[:n]
+    return [{"frame": p.frame, "latency_ms": round(p.latency_ms, 3),
+             **{k: round(v, 3) for k, v in p.timings_ms.items()}} for p in worst]
+
+
 def run_stats(launcher) -> dict:
     """The statistics of a ``Launcher``'s run (what ``--stats`` writes; docs/service.md)."""
     m = launcher.monitor
@@ -69,6 +82,7 @@ def run_stats(launcher) -> dict:
         "poses_with_missing_cameras": missing_any,
         "poses_missing_camera": {c: missing_by_camera[c] for c in launcher.rig.names},
         "latency_ms": {k: round(v, 3) for k, v in lat.items()},
+        "slowest_poses": slowest_poses(events),
         "stages_ms": ({k: {q: round(v, 3) for q, v in d.items()} for k, d in m.stage_percentiles().items()}
                       if m else {}),
         "cameras": list(launcher.rig.names),

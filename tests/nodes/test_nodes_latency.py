@@ -32,12 +32,13 @@ def test_stage_timings_report_the_slowest_and_fastest_camera():
     pf.cues = {"a": _cues("a", 7, {"total": 2.0, "w_recv": 0.5, "w_start": 0.6, "w_pub": 3.0, "w_cpu": 2.1}),
                "b": _cues("b", 7, {"total": 3.5, "w_recv": 4.0, "w_start": 4.2, "w_pub": 8.5, "w_cpu": 3.6}),
                "c": _cues("c", 7, {"total": 1.0})}          # an old worker: no w_* stamps
-    pf.t_last_ns = 1009 * MS
+    pf.t_first_ns, pf.t_last_ns = 1004 * MS, 1009 * MS
     st = stage_timings(pf, t_ready_ns=1010 * MS)
     assert st["w_recv"] == 4.0 and st["w_recv_min"] == 0.5
     assert st["w_pub"] == 8.5 and st["w_pub_min"] == 3.0
     assert st["w_cpu"] == 3.6 and st["w_cpu_min"] == 2.1
     assert st["w_perceive_sum"] == pytest.approx(6.5) and st["w_perceive_max"] == 3.5
+    assert st["f_first_cue"] == pytest.approx(4.0)
     assert st["f_last_cue"] == pytest.approx(9.0) and st["f_ready"] == pytest.approx(10.0)
 
 

@@ -485,3 +485,19 @@ def test_run_stats_reads_the_monitor_while_poses_arrive():
         t.join()
         sys.setswitchinterval(interval)
     assert stats["poses_with_missing_cameras"] > 0
+
+
+def test_slowest_poses_lists_the_top_percent_slowest_first():
+    """``slowest_poses``: the slowest 1 % (at least 5) by trigger -> published, with their
+    frames and stage timings, so a p99 can be traced to its frames."""
+    from nodes.monitor import PoseEvent
+    from nodes.run_report import slowest_poses
+
+    lat_ms = [(f * 37) % 1000 / 10 for f in range(1000)]           # 0.0 .. 99.9, each once
+    events = [PoseEvent(f, 0, int(lat_ms[f] * MS), 0, (), (), {"step_ms": float(f)}) for f in range(1000)]
+    got = slowest_poses(events)
+    assert [r["latency_ms"] for r in got] == [99.9, 99.8, 99.7, 99.6, 99.5, 99.4, 99.3, 99.2, 99.1, 99.0]
+    for r in got:
+        assert lat_ms[r["frame"]] == r["latency_ms"] and r["step_ms"] == r["frame"]
+    assert len(slowest_poses(events[:20])) == 5
+    assert slowest_poses([]) == []
