@@ -60,7 +60,9 @@ class BoneLengths:
     shoulder_half_width_m, hip_half_width_m : neck -> shoulder, pelvis -> hip, lateral.
     upper_arm_m, forearm_m, hand_m : shoulder -> elbow -> wrist -> hand centre.
     thigh_m, shank_m : hip -> knee -> ankle.
-    foot_m : ankle -> foot centre; ``foot_pitch_deg`` its angle below the horizontal at rest.
+    foot_m : ankle -> foot centre; ``foot_pitch_deg`` its angle below the horizontal at rest
+        (the default adult's 30 is the foot the tracker's state moves; the subject's foot is
+        steeper, ``FusionConfig.subject_foot_pitch_deg``).
     torso_cue_up_m : how far the torso cue (the trunk's visible centre) lies above the torso
         joint along the trunk (signed; ``body.calibrate`` fits it to the silhouettes).
     """
@@ -88,6 +90,22 @@ class BoneLengths:
         """All lengths times ``factor`` (angles unchanged)."""
         return replace(self, **{f.name: getattr(self, f.name) * factor
                                 for f in fields(self) if f.name.endswith("_m")})
+
+    def leg_reach_m(self) -> float:
+        """Hip -> foot centre with the leg straight at rest: thigh + |knee -> foot centre|."""
+        a = np.radians(self.foot_pitch_deg)
+        return self.thigh_m + float(np.hypot(self.foot_m * np.cos(a), self.shank_m + self.foot_m * np.sin(a)))
+
+    def with_foot_pitch(self, pitch_deg: float) -> "BoneLengths":
+        """The same body with its foot at ``pitch_deg`` and the thigh, shank and foot scaled by one
+        factor so that the leg reaches as far (``leg_reach_m``): what the cues measure of a leg
+        (hip and foot centre) is unchanged. ``with_foot_pitch(p).with_foot_pitch(self.foot_pitch_deg)``
+        gives ``self`` back (to rounding)."""
+        if pitch_deg == self.foot_pitch_deg:
+            return self
+        pitched = replace(self, foot_pitch_deg=float(pitch_deg))
+        k = self.leg_reach_m() / pitched.leg_reach_m()
+        return replace(pitched, thigh_m=self.thigh_m * k, shank_m=self.shank_m * k, foot_m=self.foot_m * k)
 
     def as_array(self) -> np.ndarray:
         """(n_fields,) float64 in field order (for messages; ``from_array`` inverts it)."""

@@ -35,6 +35,14 @@ class FusionConfig:
     use_filtered: bool = False             # IK on filtered (True) or measured (False) cues
     ik: str = "analytic"                   # "analytic" or "ccd" (analytic + CCD refinement)
     bone_lengths: BoneLengths | None = None
+    # the feet, degrees below the horizontal (``BoneLengths.foot_pitch_deg``): the subject's, which
+    # the cues do not measure, for estimated lengths (the suite's skeletons: 49 CMU, 58 Bandai), and
+    # the one of the body the tracker's state moves (its fit, the identity, the predictions, the
+    # lengths' fit), the legs reaching as far (``BoneLengths.with_foot_pitch``). The published pose
+    # has the subject's; the subject's in the state lost the identity of six suite clips at their
+    # start (docs/body.md, "The published foot pitched as the skeletons'")
+    subject_foot_pitch_deg: float = 50.0
+    tracking_foot_pitch_deg: float = 30.0
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
     fit_bone_lengths: bool = True          # ... their proportions fitted to the silhouettes (body.calibrate)
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
@@ -54,3 +62,6 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.ik must be one of {IK_MODES}, got {self.ik!r}")
         if self.fps <= 0:
             raise ValueError(f"FusionConfig.fps must be > 0, got {self.fps}")
+        for name in ("subject_foot_pitch_deg", "tracking_foot_pitch_deg"):
+            if not 0.0 <= getattr(self, name) < 90.0:
+                raise ValueError(f"FusionConfig.{name} must be in [0, 90) degrees, got {getattr(self, name)}")

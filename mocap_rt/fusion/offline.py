@@ -65,10 +65,10 @@ def _resolve_early(tracker: BodyTracker, results: list[FusionResult], first_cali
     last = None
     for r in results[:stop]:
         if np.isfinite(r.cues_ik).all() and r.axes is not None:
-            r.root_pos, r.angles, r.joints = tracker.solver.solve(r.cues_ik, r.axes, r.swivel, r.targets)
+            r.root_pos, r.angles, r.joints = tracker.published.solve(r.cues_ik, r.axes, r.swivel, r.targets)
             last = (r.root_pos, r.angles)
         if last is not None:
-            r.bvh_frame = tracker.solver.bvh_row(*last)
+            r.bvh_frame = tracker.published.bvh_row(*last)
 
 
 def _tracked_apart(results: list[FusionResult], pairs: tuple, end: int) -> int:

@@ -32,7 +32,10 @@ Bone lengths: ``FusionConfig.bone_lengths`` if given; else a default adult until
 (``tracker.calibrated`` turns True and ``bvh_skeleton`` changes): the cues' estimate with its
 proportions fitted to the silhouettes of those seconds; with ``background_calibration`` (the
 service) the estimate first, and the fitted lengths (``bvh_skeleton`` changes again) from the
-first frame after the other process's fit is done.
+first frame after the other process's fit is done. The state moves a body whose foot is pitched
+at ``FusionConfig.tracking_foot_pitch_deg`` (``solver``), the published pose the subject's
+(``published``, ``lengths``): the given lengths, or the estimated ones with their foot at
+``FusionConfig.subject_foot_pitch_deg``; the legs reach as far in both (``BoneLengths.with_foot_pitch``).
 """
 
 from __future__ import annotations
@@ -93,7 +96,8 @@ class BodyTracker:
         self.filter = CueFilter(N_CUES, config.filter)
         self.calibration = LengthCalibration(config, background_calibration)
         self.calibrated = config.bone_lengths is not None
-        self._set_lengths(config.bone_lengths or BoneLengths())
+        given = config.bone_lengths
+        self._set_lengths(given or BoneLengths(), None if given is None else given.foot_pitch_deg)
         self._right: np.ndarray | None = None
         self._axes: np.ndarray | None = None      # the last frame's body axes
         self._last_pose: tuple[np.ndarray, np.ndarray] | None = None       # the state: the trunk unrefined
@@ -107,18 +111,24 @@ class BodyTracker:
         self._pending = None          # fit_frame -> identify_frame: what the identity scores
 
     # ------------------------------------------------------------------ model
-    def _set_lengths(self, lengths: BoneLengths) -> None:
-        self.solver = PoseSolver(lengths, self.config)
+    def _set_lengths(self, lengths: BoneLengths, subject_pitch_deg: float | None = None) -> None:
+        """The body the state moves (``solver``) and the subject's (``published``) from ``lengths``,
+        the subject's foot at ``subject_pitch_deg`` (None: ``FusionConfig.subject_foot_pitch_deg``)."""
+        cfg = self.config
+        self.solver = PoseSolver(lengths.with_foot_pitch(cfg.tracking_foot_pitch_deg), cfg)
+        subject = lengths.with_foot_pitch(cfg.subject_foot_pitch_deg if subject_pitch_deg is None else subject_pitch_deg)
+        self.published = self.solver if subject == self.solver.lengths else PoseSolver(subject, cfg)
 
     @property
     def lengths(self) -> BoneLengths:
-        return self.solver.lengths
+        """The subject's bone lengths (the published pose's and the BVH's)."""
+        return self.published.lengths
 
     @property
     def bvh_skeleton(self) -> BvhSkeleton:
         """The BVH hierarchy matching ``FusionResult.bvh_frame`` (changes at calibration, and again
         when a background fit hands over its lengths)."""
-        return self.solver.bvh
+        return self.published.bvh
 
     # ------------------------------------------------------------------ 2D -> 3D
     def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -176,7 +186,8 @@ class BodyTracker:
         BVH row kept for the frames without a pose, refined (``PoseSolver.solve``)."""
         root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
         self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
-        root, angles, joints = self.solver.solve(cues_ik, axes, self._swivel, targets, plain=(root, angles, joints))
+        plain = (root, angles, joints) if self.published is self.solver else None
+        root, angles, joints = self.published.solve(cues_ik, axes, self._swivel, targets, plain=plain)
         self._published = (root, angles)
         return root, angles, joints, axes
 
@@ -263,8 +274,8 @@ class BodyTracker:
             self._maybe_calibrate(*calib_sample)
         t3 = time.perf_counter()
         timings["ik"] = (t3 - t2) * 1e3
-        row = (self.solver.bvh_row(*self._published) if self._published is not None
-               else bvh_frame(self.solver.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
+        row = (self.published.bvh_row(*self._published) if self._published is not None
+               else bvh_frame(self.published.model, np.zeros(3), np.zeros((N_JOINTS, 3))))
         self._update_pair(cues_ik)
         self._pending = None if scored is None else (scored, cues_ik, right_before, calib_sample)
         timings["total"] = (time.perf_counter() - t0) * 1e3
@@ -336,7 +347,7 @@ class BodyTracker:
         if targets is not None and targets.n_views > 0:
             fit = self.solver.fitter.fit(self.solver.fill_missing(cues_ik, axes), axes, swivel, targets)
             axes, swivel = fit.axes, fit.swivel
-        root, angles, joints = self.solver.solve(cues_ik, axes, swivel, targets)
+        root, angles, joints = self.published.solve(cues_ik, axes, swivel, targets)
         return self._relabelled(result, k, cues_ik, (root, angles, joints, axes, swivel))
 
     def _relabelled(self, result: FusionResult, k: int, cues_ik: np.ndarray, pose: tuple | None = None) -> FusionResult:
@@ -347,7 +358,7 @@ class BodyTracker:
         if pose is None:
             return out
         root, angles, joints, axes, swivel = pose
-        return replace(out, root_pos=root, angles=angles, joints=joints, bvh_frame=self.solver.bvh_row(root, angles),
+        return replace(out, root_pos=root, angles=angles, joints=joints, bvh_frame=self.published.bvh_row(root, angles),
                        pan_rad=pan_angle(axes), axes=axes, swivel=swivel)
 
     def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None,

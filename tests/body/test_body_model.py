@@ -123,6 +123,30 @@ def test_bone_lengths_toml_round_trip_and_errors(tmp_path):
         read_bone_lengths(bad)
 
 
+def test_a_foot_pitched_again_keeps_the_legs_reach():
+    """``with_foot_pitch``: the rest pose's hip -> knee -> foot centre (forward kinematics, the
+    oracle of ``leg_reach_m``) reaches as far at the new pitch, the foot's angle below the
+    horizontal is the new one, and the round trip gives the lengths back."""
+    def reach_and_pitch(L):
+        rest = body_model(L).rest_positions()
+        knee, ankle, foot = (rest[J[f"{n}_r"]] for n in ("knee", "ankle", "foot"))
+        v = foot - ankle
+        return (np.linalg.norm(rest[J["knee_r"]] - rest[J["hip_r"]]) + np.linalg.norm(foot - knee),
+                np.degrees(np.arctan2(-v[2], np.hypot(v[0], v[1]))))
+
+    L = BoneLengths(thigh_m=0.45, shank_m=0.40, foot_m=0.11, foot_pitch_deg=55.0)
+    for pitch in (20.0, 30.0, 55.0, 70.0):
+        P = L.with_foot_pitch(pitch)
+        reach, got_pitch = reach_and_pitch(P)
+        assert reach == pytest.approx(reach_and_pitch(L)[0], rel=1e-12) == pytest.approx(L.leg_reach_m(), rel=1e-12)
+        assert got_pitch == pytest.approx(pitch, abs=1e-9)
+        assert P.trunk_m == L.trunk_m and P.upper_arm_m == L.upper_arm_m
+        back = P.with_foot_pitch(L.foot_pitch_deg)
+        for k in ("thigh_m", "shank_m", "foot_m", "foot_pitch_deg"):
+            assert getattr(back, k) == pytest.approx(getattr(L, k), rel=1e-12)
+    assert L.with_foot_pitch(L.foot_pitch_deg) is L
+
+
 def test_bone_lengths_from_joints_and_from_cues():
     rng = np.random.default_rng(5)
     L = BoneLengths(trunk_m=0.46, thigh_m=0.40, forearm_m=0.24, foot_pitch_deg=35.0)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from mocap_rt.body.estimate import bone_lengths_from_joints
+from mocap_rt.body.skeleton import BoneLengths
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.tracker import BodyTracker
@@ -130,6 +131,10 @@ def test_config_errors():
         FusionConfig(views="three")
     with pytest.raises(ValueError, match="ik"):
         FusionConfig(ik="magic")
+    with pytest.raises(ValueError, match="subject_foot_pitch_deg"):
+        FusionConfig(subject_foot_pitch_deg=90.0)
+    with pytest.raises(ValueError, match="tracking_foot_pitch_deg"):
+        FusionConfig(tracking_foot_pitch_deg=float("nan"))
 
 
 def test_the_silhouette_fit_of_the_lengths_runs_in_the_background_and_agrees(backwards_walk_3s):
@@ -162,6 +167,12 @@ def test_the_silhouette_fit_of_the_lengths_runs_in_the_background_and_agrees(bac
             live.calibration.fitting.result(timeout=120)     # the other process's fit, done
     assert at is not None and at < rec.n_frames - 1
     assert live.lengths == offline.lengths            # taken by the frame after it was done
+    # the subject's lengths have the subject's foot; the state's body the tracking foot, reaching as far
+    state, subject = offline.solver.lengths, offline.lengths
+    assert subject.foot_pitch_deg == FusionConfig().subject_foot_pitch_deg != state.foot_pitch_deg
+    assert state.foot_pitch_deg == FusionConfig().tracking_foot_pitch_deg == BoneLengths().foot_pitch_deg
+    assert state.leg_reach_m() == pytest.approx(subject.leg_reach_m(), rel=1e-12)
+    assert offline.bvh_skeleton is offline.published.bvh
     fitted, estimated = (1000 * np.mean(err[id(t)]) for t in (offline, unfitted))
     assert fitted < estimated, (fitted, estimated)      # 69 vs 72 mm on these 30 frames at 320x240
     rec.close()
@@ -237,7 +248,7 @@ def test_the_published_pose_has_its_trunk_refined_and_the_state_keeps_the_plain_
         np.testing.assert_array_equal(a.cues_ik, b.cues_ik)
         np.testing.assert_array_equal(c.cues_ik, b.cues_ik)
         for t, r in ((on, a), (full, c)):
-            np.testing.assert_array_equal(r.bvh_frame, t.solver.bvh_row(r.root_pos, r.angles))
+            np.testing.assert_array_equal(r.bvh_frame, t.published.bvh_row(r.root_pos, r.angles))
         if not np.allclose(a.joints, b.joints):
             hung += 1
             np.testing.assert_allclose(a.joints[JOINT_NAMES.index("head")], a.cues_ik[C_HEAD], atol=1e-9)
