@@ -51,6 +51,9 @@ MIN_FRAMES = 5                              # fewer frames left: the estimate st
 # per frame and per % a length moved (per cm of the cue's height). Without it the silhouettes
 # recover a rendered body's lengths but pull some of the suite's fused clips far off (docs/body.md)
 PRIOR_COST = 0.01
+# the published body's own fit (``fit_state_and_published``): the trunk, the torso cue's height
+# and the arms searched again from the estimate without the prior; its legs stay the estimate's
+PUBLISHED_PARAMS = ("torso_cue_up_m", "trunk_m", "shoulder_half_width_m", "upper_arm_m", "forearm_m")
 
 
 def _with(lengths: BoneLengths, name: str, value: float) -> BoneLengths | None:
@@ -77,18 +80,20 @@ def frame_costs(lengths: BoneLengths, frames: Sequence[tuple], analytic: Analyti
     return out
 
 
-def moved_percent(lengths: BoneLengths, estimate: BoneLengths) -> float:
-    """Percent the lengths moved from ``estimate`` (cm for the torso cue's height)."""
-    p = 100.0 * abs(lengths.torso_cue_up_m - estimate.torso_cue_up_m)
-    for name in PARAMS[1:]:
-        p += 100.0 * abs(np.log(getattr(lengths, name) / getattr(estimate, name)))
+def moved_percent(lengths: BoneLengths, estimate: BoneLengths, params: Sequence[str] = PARAMS) -> float:
+    """Percent the lengths ``params`` moved from ``estimate`` (cm for the torso cue's height)."""
+    p = 0.0
+    for name in params:
+        a, b = getattr(lengths, name), getattr(estimate, name)
+        p += 100.0 * (abs(a - b) if name == "torso_cue_up_m" else abs(np.log(a / b)))
     return p
 
 
 def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: AnalyticConfig = AnalyticConfig(),
-                     fit: FitConfig = FitConfig(), sweeps: int = 2, prior_cost: float = PRIOR_COST) -> BoneLengths:
-    """``estimate`` with ``PARAMS`` fitted to ``frames`` (module doc): ``sweeps`` coordinate
-    sweeps over ``STEPS`` (``CUE_STEPS_M``), then one over ``FINE_STEPS``
+                     fit: FitConfig = FitConfig(), sweeps: int = 2, prior_cost: float = PRIOR_COST,
+                     params: Sequence[str] = PARAMS) -> BoneLengths:
+    """``estimate`` with ``params`` (of ``PARAMS``) fitted to ``frames`` (module doc): ``sweeps``
+    coordinate sweeps over ``STEPS`` (``CUE_STEPS_M``), then one over ``FINE_STEPS``
     (``FINE_CUE_STEPS_M``); ``prior_cost`` per frame and per % moved (``PRIOR_COST``).
     ``frames``: (cues (6, 3) metres, world; body axes (3, 3); ``SilhouetteTargets``). Frames
     with a missing cue or no view are skipped; with fewer than ``MIN_FRAMES`` usable,
@@ -104,7 +109,7 @@ def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: A
     w_prior = prior_cost * len(frames)
     lengths, best = estimate, float(costs[costs <= FRAME_COST_MAX].sum())
     for fine in [False] * sweeps + [True]:
-        for name in PARAMS:
+        for name in params:
             v0, e = getattr(lengths, name), getattr(estimate, name)
             if name == "torso_cue_up_m":
                 values = [v0 + d for d in (FINE_CUE_STEPS_M if fine else CUE_STEPS_M) if abs(v0 + d) <= MAX_CUE_UP_M]
@@ -114,10 +119,21 @@ def fit_bone_lengths(estimate: BoneLengths, frames: Sequence[tuple], analytic: A
                 cand = _with(lengths, name, v)
                 if cand is None:
                     continue
-                cost = float(frame_costs(cand, frames, analytic, fit).sum()) + w_prior * moved_percent(cand, estimate)
+                cost = float(frame_costs(cand, frames, analytic, fit).sum()) + w_prior * moved_percent(cand, estimate,
+                                                                                                      params)
                 if cost < best:
                     best, lengths = cost, cand
     return lengths
+
+
+def fit_state_and_published(estimate: BoneLengths, frames: Sequence[tuple], analytic: AnalyticConfig = AnalyticConfig(),
+                            fit: FitConfig = FitConfig()) -> tuple[BoneLengths, BoneLengths]:
+    """The lengths of the tracker's state, ``fit_bone_lengths`` with the prior, and those of the
+    published pose, ``PUBLISHED_PARAMS`` fitted from ``estimate`` without it: the prior holds the
+    state near the estimate, where the identity was measured to hold (docs/body.md, "The published
+    body's trunk and arms fitted without the prior")."""
+    return (fit_bone_lengths(estimate, frames, analytic, fit),
+            fit_bone_lengths(estimate, frames, analytic, fit, prior_cost=0.0, params=PUBLISHED_PARAMS))
 
 
 def _send_args(conn, args: tuple) -> None:
@@ -139,8 +155,8 @@ def _recv_args(conn) -> tuple:
 
 
 def _fit_in_child(jobs, send) -> None:
-    """``BackgroundFit``'s process: ``fit_bone_lengths(*args)`` of the args received on ``jobs``,
-    its result (True, lengths) or failure (False, message) sent on ``send``; nothing when the
+    """``BackgroundFit``'s process: ``fit_state_and_published(*args)`` of the args received on
+    ``jobs``, its result (True, (state, published)) or failure (False, message) sent on ``send``; nothing when the
     parent closed ``jobs`` without a job."""
     try:
         args = _recv_args(jobs)
@@ -148,7 +164,7 @@ def _fit_in_child(jobs, send) -> None:
         send.close()
         return
     try:
-        send.send((True, fit_bone_lengths(*args)))
+        send.send((True, fit_state_and_published(*args)))
     except Exception as e:      # noqa: BLE001 - reported to the parent, which keeps its estimate
         send.send((False, f"{type(e).__name__}: {e}"))
     finally:
@@ -161,8 +177,8 @@ def _stop(proc) -> None:
 
 
 class BackgroundFit:
-    """``fit_bone_lengths(*args)`` in a spawned process at the idle CPU priority (the
-    service's fusion: 2-4 s of CPU that must neither stall its frames nor share their
+    """``fit_state_and_published(*args)`` in a spawned process at the idle CPU priority (the
+    service's fusion: 3-7 s of CPU that must neither stall its frames nor share their
     interpreter lock; a thread doubled the service's latency p99).
 
     The process may start before its job: ``BackgroundFit()`` starts it, ``submit(*args)``
@@ -197,7 +213,7 @@ class BackgroundFit:
             self.submit(*args)
 
     def submit(self, *args) -> None:
-        """Give the process its job, ``fit_bone_lengths(*args)`` (once)."""
+        """Give the process its job, ``fit_state_and_published(*args)`` (once)."""
         if self._submitted:
             raise RuntimeError("a BackgroundFit runs one job")
         self._submitted = True
@@ -214,8 +230,8 @@ class BackgroundFit:
     def done(self) -> bool:
         return self._answer is not None or self._recv.poll() or not self._proc.is_alive()
 
-    def result(self, timeout: float | None = None) -> BoneLengths:
-        """The fitted lengths, waiting up to ``timeout`` s (None: until done); RuntimeError when
+    def result(self, timeout: float | None = None) -> tuple[BoneLengths, BoneLengths]:
+        """The fitted lengths (state, published), waiting up to ``timeout`` s (None: until done); RuntimeError when
         the fit failed, the process ended without a result or the time ran out."""
         if self._answer is None:
             try:

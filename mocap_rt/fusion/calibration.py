@@ -3,8 +3,9 @@
 ``LengthCalibration`` keeps each frame's measured cues and body axes, and every
 ``CALIB_EVERY``-th frame its IK cues and silhouettes. Once ``calibration_s`` of them are in
 (or at ``finish``), ``estimate.estimate_bone_lengths`` scales the default adult to the cues;
-then, with ``FusionConfig.fit_bone_lengths``, ``body.calibrate.fit_bone_lengths`` fits the
-proportions to the kept silhouettes. That fit takes 2-4 s of CPU: in the background
+then, with ``FusionConfig.fit_bone_lengths``, ``body.calibrate.fit_state_and_published`` fits the
+proportions to the kept silhouettes, the state's and the published pose's. That fit takes 3-7 s
+of CPU: in the background
 (``background``, the service) it runs in another process at the idle priority
 (``calibrate.BackgroundFit``, started with the window, before the frames) and ``poll`` hands
 over its lengths once it is done; else (offline) it runs in the frame that calibrates.
@@ -16,7 +17,7 @@ import logging
 
 import numpy as np
 
-from mocap_rt.body.calibrate import BackgroundFit, fit_bone_lengths
+from mocap_rt.body.calibrate import BackgroundFit, fit_state_and_published
 from mocap_rt.body.estimate import estimate_bone_lengths
 from mocap_rt.body.silhouette import SilhouetteTargets
 from mocap_rt.body.skeleton import BoneLengths
@@ -24,6 +25,7 @@ from mocap_rt.fusion.config import FusionConfig
 
 log = logging.getLogger(__name__)
 
+Lengths = tuple[BoneLengths, BoneLengths]    # (the tracker's state's, the published pose's)
 CALIB_EVERY = 2      # every this many calibration frames one keeps its silhouettes (body.calibrate)
 
 
@@ -43,7 +45,7 @@ class LengthCalibration:
         self._views: list[tuple] = []
 
     def add(self, X: np.ndarray, axes: np.ndarray | None, cues_ik: np.ndarray | None = None,
-            targets: SilhouetteTargets | None = None) -> BoneLengths | None:
+            targets: SilhouetteTargets | None = None) -> Lengths | None:
         """Keep a frame's measured cues X (6, 3) and axes, and every ``CALIB_EVERY``-th frame its
         IK cues and silhouettes; once ``calibration_s`` of them are in, the lengths to take
         (``finish``), else None."""
@@ -56,9 +58,10 @@ class LengthCalibration:
             return self.finish()
         return None
 
-    def finish(self) -> BoneLengths | None:
-        """The lengths of the frames kept so far (the window is emptied): the fitted ones, or in
-        the background the estimate while the fit runs; None without a frame or an estimate."""
+    def finish(self) -> Lengths | None:
+        """The lengths (state, published) of the frames kept so far (the window is emptied): the
+        fitted ones, or in the background the estimate (both) while the fit runs; None without a
+        frame or an estimate."""
         if not self._cues:
             return None
         est = estimate_bone_lengths(np.array(self._cues), BoneLengths(), np.array(self._axes))
@@ -70,17 +73,17 @@ class LengthCalibration:
             return None
         log.info("bone lengths estimated from the cues: %s", est)
         if not (self.config.fit_bone_lengths and views):
-            return est
+            return est, est
         args = (est, views, self.config.analytic, self.config.fit)
         if self.background:
             self.fitting, self._process = self._process or BackgroundFit(), None
             self.fitting.submit(*args)
-            return est
-        return _fitted(fit_bone_lengths(*args))
+            return est, est
+        return _fitted(fit_state_and_published(*args))
 
-    def poll(self) -> BoneLengths | None:
-        """The background fit's lengths once it is done, else None (a failed fit: None, and the
-        estimate stays)."""
+    def poll(self) -> Lengths | None:
+        """The background fit's lengths (state, published) once it is done, else None (a failed
+        fit: None, and the estimate stays)."""
         job = self.fitting
         if job is None or not job.done():
             return None
@@ -92,6 +95,6 @@ class LengthCalibration:
             return None
 
 
-def _fitted(lengths: BoneLengths) -> BoneLengths:
-    log.info("bone lengths fitted to the silhouettes: %s", lengths)
+def _fitted(lengths: Lengths) -> Lengths:
+    log.info("bone lengths fitted to the silhouettes: %s; the published pose's: %s", *lengths)
     return lengths

@@ -34,8 +34,10 @@ proportions fitted to the silhouettes of those seconds; with ``background_calibr
 service) the estimate first, and the fitted lengths (``bvh_skeleton`` changes again) from the
 first frame after the other process's fit is done. The state moves a body whose foot is pitched
 at ``FusionConfig.tracking_foot_pitch_deg`` (``solver``), the published pose the subject's
-(``published``, ``lengths``): the given lengths, or the estimated ones with their foot at
-``FusionConfig.subject_foot_pitch_deg``; the legs reach as far in both (``BoneLengths.with_foot_pitch``).
+(``published``, ``lengths``): the given lengths, or the fitted ones with their foot at
+``FusionConfig.subject_foot_pitch_deg``, the legs reaching as far (``BoneLengths.with_foot_pitch``).
+The two fits differ too: the state's keeps the prior toward the cues' estimate, the published
+one fits the trunk and arms without it (``calibrate.fit_state_and_published``).
 """
 
 from __future__ import annotations
@@ -97,7 +99,7 @@ class BodyTracker:
         self.calibration = LengthCalibration(config, background_calibration)
         self.calibrated = config.bone_lengths is not None
         given = config.bone_lengths
-        self._set_lengths(given or BoneLengths(), None if given is None else given.foot_pitch_deg)
+        self._set_lengths(given or BoneLengths(), subject_pitch_deg=None if given is None else given.foot_pitch_deg)
         self._right: np.ndarray | None = None
         self._axes: np.ndarray | None = None      # the last frame's body axes
         self._last_pose: tuple[np.ndarray, np.ndarray] | None = None       # the state: the trunk unrefined
@@ -111,12 +113,15 @@ class BodyTracker:
         self._pending = None          # fit_frame -> identify_frame: what the identity scores
 
     # ------------------------------------------------------------------ model
-    def _set_lengths(self, lengths: BoneLengths, subject_pitch_deg: float | None = None) -> None:
-        """The body the state moves (``solver``) and the subject's (``published``) from ``lengths``,
-        the subject's foot at ``subject_pitch_deg`` (None: ``FusionConfig.subject_foot_pitch_deg``)."""
+    def _set_lengths(self, lengths: BoneLengths, published: BoneLengths | None = None,
+                     subject_pitch_deg: float | None = None) -> None:
+        """The body the state moves (``solver``, of ``lengths``) and the subject's (``published``,
+        of ``published``, default ``lengths``), the subject's foot at ``subject_pitch_deg`` (None:
+        ``FusionConfig.subject_foot_pitch_deg``)."""
         cfg = self.config
         self.solver = PoseSolver(lengths.with_foot_pitch(cfg.tracking_foot_pitch_deg), cfg)
-        subject = lengths.with_foot_pitch(cfg.subject_foot_pitch_deg if subject_pitch_deg is None else subject_pitch_deg)
+        pitch = cfg.subject_foot_pitch_deg if subject_pitch_deg is None else subject_pitch_deg
+        subject = (lengths if published is None else published).with_foot_pitch(pitch)
         self.published = self.solver if subject == self.solver.lengths else PoseSolver(subject, cfg)
 
     @property
@@ -204,16 +209,16 @@ class BodyTracker:
         if not self.calibrated:
             self._calibrated_to(self.calibration.add(X, axes, cues_ik, targets))
 
-    def _calibrated_to(self, lengths: BoneLengths | None) -> None:
+    def _calibrated_to(self, lengths: tuple[BoneLengths, BoneLengths] | None) -> None:
         if lengths is not None:
-            self._set_lengths(lengths)
+            self._set_lengths(*lengths)
             self.calibrated = True
 
     def _poll_fitted(self) -> None:
         """Take the background fit's lengths once it is done (a failed fit keeps the estimate)."""
         lengths = self.calibration.poll()
         if lengths is not None:
-            self._set_lengths(lengths)
+            self._set_lengths(*lengths)
 
     # ------------------------------------------------------------------ API
     def step(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mocap_rt.body.analytic import analytic_pose
-from mocap_rt.body.calibrate import fit_bone_lengths, moved_percent
+from mocap_rt.body.calibrate import fit_bone_lengths, fit_state_and_published, moved_percent
 from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.silhouette import SilhouetteTargets, pose_points
@@ -104,6 +104,20 @@ def test_the_fit_finds_the_subjects_proportions_from_the_default_adults(frames):
     near = fit_bone_lengths(start, [f[:3] for f in frames])
     assert moved_percent(near, start) < moved_percent(fitted, start)
     assert e1 < _joint_error_mm(near, frames, ELBOWS + SHOULDERS) < 0.6 * e0      # 49 mm
+
+
+def test_the_published_body_fits_its_trunk_and_arms_without_the_prior(frames):
+    """``fit_state_and_published``: the state's lengths are ``fit_bone_lengths``'s (with the prior);
+    the published body's trunk, torso cue and arms are searched again without it, its legs stay
+    the estimate's, and its shoulders and elbows come nearer the truth than the state's."""
+    start = _start()
+    views = [f[:3] for f in frames]
+    state, published = fit_state_and_published(start, views)
+    assert state == fit_bone_lengths(start, views)
+    for name in ("hip_half_width_m", "thigh_m", "shank_m", "foot_m", "hand_m"):
+        assert getattr(published, name) == getattr(start, name)
+    e_start, e_state, e_pub = (_joint_error_mm(L, frames, ELBOWS + SHOULDERS) for L in (start, state, published))
+    assert e_pub < 0.5 * e_state < 0.5 * e_start, (e_start, e_state, e_pub)
 
 
 def test_the_true_arms_stay(frames):
