@@ -47,10 +47,13 @@ COLS = (("MPJPE", "mpjpe_mm", 6, 0), ("PA", "pa_mpjpe_mm", 5, 0), ("mirr%", "mir
 LEGS = [J[n] for s in ("l", "r") for n in (f"knee_{s}", f"ankle_{s}", f"foot_{s}")]
 
 
-def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False) -> dict:
+def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False, smooth_hz: float | None = None) -> dict:
     """Process one recording and score it (``legs=False``: the desktop rig, legs not scored;
     ``truth_bones``: the truth's bone lengths instead of the estimate, to tell the estimate's
-    share of the error from the rest)."""
+    share of the error from the rest; ``smooth_hz``: the offline smoothing's cutoff, 0 = off:
+    the live service's poses; None: the default)."""
+    from dataclasses import replace
+
     from mocap_rt.body.estimate import bone_lengths_from_joints
     from mocap_rt.fusion.evaluate import suite_metrics
     from mocap_rt.fusion.offline import process_recording
@@ -60,7 +63,9 @@ def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False) 
     rec = Recording(rec_dir)
     truth = {k: rec.truth[k] for k in ("frames", "joints", "cues", "joint_names")}
     rec.close()
-    config = FusionConfig(bone_lengths=bone_lengths_from_joints(truth["joints"])) if truth_bones else None
+    config = FusionConfig(bone_lengths=bone_lengths_from_joints(truth["joints"]) if truth_bones else None)
+    if smooth_hz is not None:
+        config = replace(config, offline_smooth_hz=smooth_hz)
     with tempfile.TemporaryDirectory() as tmp, timing_lock(lock):
         t0 = time.perf_counter()
         out = process_recording(rec_dir, tmp, config, progress=False)
@@ -145,6 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render-seed", type=int, default=0,
                     help="the studio render's seed (camera gains, flicker, sensor noise): another capture of "
                          "the same motions, to tell a change's effect from the suite's noise floor")
+    ap.add_argument("--smooth-hz", type=float, default=None,
+                    help="the offline smoothing's cutoff (FusionConfig.offline_smooth_hz); 0: off, the poses "
+                         "the live service publishes")
     ap.add_argument("--truth-bones", action="store_true",
                     help="the truth's bone lengths instead of the estimate (the estimate's share of the error)")
     args = ap.parse_args(argv)
@@ -161,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     results, t0 = {}, time.perf_counter()
     for c in clips:
         rec = ensure_recording(c, size, render_seed=args.render_seed)
-        results[c.name] = run_clip(rec, not args.no_lock, truth_bones=args.truth_bones)
+        results[c.name] = run_clip(rec, not args.no_lock, truth_bones=args.truth_bones, smooth_hz=args.smooth_hz)
         print(_row(c.name, results[c.name]), flush=True)
     print(f"\n== motion suite ({len(clips)} clips, {time.perf_counter() - t0:.0f} s) ==")
     print_tables(results, ys)
@@ -172,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         for c in select(suite_clips("all"), "proc_clap_s0,proc_hands_cross_face_s0"):
             desktop[c.name] = run_clip(ensure_recording(c, size, rig="desktop", render_seed=args.render_seed),
                                        not args.no_lock, legs=False,
-                                       truth_bones=args.truth_bones)
+                                       truth_bones=args.truth_bones, smooth_hz=args.smooth_hz)
             print(_row(c.name, desktop[c.name]))
     if args.json:
         with open(args.json, "w") as fh:

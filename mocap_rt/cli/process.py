@@ -28,6 +28,10 @@ def register(subparsers) -> None:
                    help="analytic two-link IK, or analytic + improved-CCD refinement (default: the config's, 'analytic')")
     p.add_argument("--bones", metavar="TOML", help="subject bone lengths ([bones] table); "
                    "default: estimated from the first seconds of cues")
+    p.add_argument("--smooth-hz", type=float, default=argparse.SUPPRESS, metavar="HZ",
+                   help="low-pass the clip's poses both ways at this cutoff once all are solved (no lag; "
+                        "mocap_rt/fusion/smooth.py); 0: off, the poses as the live service publishes them "
+                        "(default: the config's, 4)")
     p.add_argument("--max-frames", type=int, help="process only the first N frames")
     p.add_argument("--truth-2d", action="store_true",
                    help="feed the truth's 2D cues instead of perception (studio recordings)")
@@ -59,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     claim_outputs(outputs, args.overwrite)
     cfg = settings.fusion if settings else FusionConfig()
     flags = {"views": getattr(args, "views", None), "ik": getattr(args, "ik", None),
+             "offline_smooth_hz": getattr(args, "smooth_hz", None),
              "bone_lengths": read_bone_lengths(args.bones) if args.bones else None}
     cfg = replace(cfg, **{k: v for k, v in flags.items() if v is not None})
     out = process_recording(rec, args.out, cfg, settings.perception if settings else None,

@@ -45,6 +45,10 @@ class FusionConfig:
     tracking_foot_pitch_deg: float = 30.0
     calibration_s: float = 2.0             # seconds of cues for the automatic bone lengths
     fit_bone_lengths: bool = True          # ... their proportions fitted to the silhouettes (body.calibrate)
+    # offline only (``mocap-rt process``, ``fusion.smooth``): the clip's poses low-passed both ways
+    # at this cutoff once every frame is solved; 0 = off (what the live service, which cannot look
+    # ahead, publishes)
+    offline_smooth_hz: float = 4.0
     velocity_smoothing: float = 0.85       # EMA factor per frame of the torso velocity (pan from walking)
     silhouettes: bool = True               # fit the body to the cameras' silhouettes when the cues carry them
     visible_offsets: bool = True           # predictions carry where the head's and hands' visible centres lie
@@ -62,6 +66,8 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.ik must be one of {IK_MODES}, got {self.ik!r}")
         if self.fps <= 0:
             raise ValueError(f"FusionConfig.fps must be > 0, got {self.fps}")
+        if self.offline_smooth_hz < 0:
+            raise ValueError(f"FusionConfig.offline_smooth_hz must be >= 0 (0 = off), got {self.offline_smooth_hz}")
         for name in ("subject_foot_pitch_deg", "tracking_foot_pitch_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"FusionConfig.{name} must be in [0, 90) degrees, got {getattr(self, name)}")

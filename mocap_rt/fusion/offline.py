@@ -5,7 +5,8 @@ prediction), then ``BodyTracker.step``. When the identity switches the labels, t
 before it that its evidence came from (while the track acquires its identity: all of the
 track's frames) are given the new labels too (``_relabel_back``: what the live service,
 which has published them, cannot do). At the end, frames solved before the bone lengths
-were estimated are re-solved with the final lengths, so the whole clip uses one skeleton.
+were estimated are re-solved with the final lengths, so the whole clip uses one skeleton, and
+the poses are low-passed both ways (``fusion.smooth``, ``FusionConfig.offline_smooth_hz``).
 Writes ``OUT_DIR/poses.bvh``, ``OUT_DIR/bones.toml`` (the bone lengths used,
 given or estimated; reusable with ``--bones``), ``OUT_DIR/poses.c3d`` and ``OUT_DIR/poses.trc``
 (the joints as markers, ``mocap_rt.io.exports``) and ``OUT_DIR/poses.npz``:
@@ -30,6 +31,7 @@ import numpy as np
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.evaluate import Accuracy, accuracy, align_truth, truth_camera_cues
 from mocap_rt.fusion.identity import ALTERNATIVE_PAIRS, ALTERNATIVES
+from mocap_rt.fusion.smooth import smooth_poses
 from mocap_rt.fusion.tracker import BodyTracker, FusionResult
 from mocap_rt.names import CUE_NAMES, JOINT_NAMES, N_CUES
 
@@ -111,6 +113,22 @@ def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: i
     return k, now - back
 
 
+def _smooth(tracker: BodyTracker, results: list[FusionResult], cutoff_hz: float) -> None:
+    """The poses of ``results`` low-passed both ways (``fusion.smooth``), in place: their root,
+    angles, joints and BVH rows."""
+    posed = np.array([np.isfinite(r.root_pos).all() for r in results])
+    if posed.sum() < 2:
+        return
+    solver = tracker.published
+    root, angles, joints = smooth_poses(solver.pose_model, np.array([r.root_pos for r in results]),
+                                        np.array([r.angles for r in results]), posed,
+                                        np.array([r.joint_valid for r in results]), tracker.config.fps, cutoff_hz)
+    for i in np.flatnonzero(posed):
+        r = results[i]
+        r.root_pos, r.angles, r.joints = root[i], angles[i], joints[i]
+        r.bvh_frame = solver.bvh_row(root[i], angles[i])
+
+
 def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool = True) -> list[FusionResult]:
     """Step ``tracker`` over ``frame_cues(frame_index, predictions) -> (frame, cues)``."""
     from tqdm import tqdm
@@ -137,6 +155,8 @@ def run_tracker(tracker: BodyTracker, frame_cues, n_frames: int, progress: bool 
     if first_cal is None and tracker.finish_calibration():  # a clip shorter than calibration_s
         first_cal = len(results)
     _resolve_early(tracker, results, first_cal)
+    if tracker.config.offline_smooth_hz > 0:
+        _smooth(tracker, results, tracker.config.offline_smooth_hz)
     for r in results:
         r.targets = None
     return results
@@ -167,6 +187,9 @@ def process_recording(rec_dir: str | Path, out_dir: str | Path, config: FusionCo
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     config = replace(config or FusionConfig(), fps=float(rec.fps))
+    if config.offline_smooth_hz >= config.fps / 2:      # refused before the work, not after it
+        raise ValueError(f"{rec_dir}: the smoothing cutoff (offline_smooth_hz, --smooth-hz) {config.offline_smooth_hz:g} Hz "
+                         f"must be below half the recording's frame rate ({config.fps / 2:g} Hz)")
     tracker = BodyTracker(rec.rig, config)
     names = list(rec.rig.names)
     n = rec.n_frames if max_frames is None else min(rec.n_frames, int(max_frames))

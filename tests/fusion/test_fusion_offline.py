@@ -88,8 +88,19 @@ def test_process_config_file_reaches_fusion_and_perception(tmp_path, monkeypatch
     assert cli_main([*argv, "--ik", "analytic"]) == 0
     assert (got["config"].views, got["config"].ik, got["config"].filter.gate_m) == ("pair", "analytic", 0.2)
     assert got["perception"].roi_margin_px == 9
-    assert cli_main([*argv[:4], "--overwrite"]) == 0          # no --config: the defaults
+    assert got["config"].offline_smooth_hz == 4.0
+    assert cli_main([*argv[:4], "--overwrite", "--smooth-hz", "0"]) == 0    # no --config: the defaults
     assert (got["config"].views, got["config"].ik, got["perception"]) == ("all", "analytic", None)
+    assert got["config"].offline_smooth_hz == 0.0
+
+
+@pytest.mark.slow
+def test_a_smoothing_cutoff_above_half_the_frame_rate_is_refused_before_any_work(recording, tmp_path):
+    from mocap_rt.fusion.config import FusionConfig
+
+    with pytest.raises(ValueError, match=r"offline_smooth_hz.*15 Hz"):
+        process_recording(recording, tmp_path, FusionConfig(offline_smooth_hz=15.0), progress=False)
+    assert not any(tmp_path.iterdir())
 
 
 def test_tracked_apart_counts_back_to_the_last_frame_tracking_could_have_exchanged_a_pair():
