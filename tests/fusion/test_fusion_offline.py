@@ -30,6 +30,15 @@ def test_process_truth_2d_writes_bvh_and_npz_and_is_accurate(recording, tmp_path
     text = (tmp_path / "poses.bvh").read_text()
     mocap = bvh.Bvh(text)
     assert mocap.nframes == n and mocap.get_joints_names() == list(JOINT_NAMES)
+    # the BVH is the npz's poses (smoothed: fusion.smooth), joint for joint
+    from mocap_rt.body.bvh_export import WORLD_TO_BVH
+    from mocap_rt.io.bvh import forward_kinematics, read_bvh
+    clip = read_bvh(tmp_path / "poses.bvh")
+    with np.load(tmp_path / "poses.npz") as z:
+        posed = np.isfinite(z["joints"]).all(axis=(1, 2))
+        assert posed.sum() > n // 2
+        np.testing.assert_allclose(forward_kinematics(clip.skeleton, clip.motion)[posed],
+                                   z["joints"][posed] @ WORLD_TO_BVH.T, atol=1e-4)
     # the joints as markers: C3D (Z up) and TRC (Y up), millimetres in the files, same poses
     from mocap_rt.markers.io import read_c3d, read_trc
     c3d, trc = read_c3d(tmp_path / "poses.c3d"), read_trc(tmp_path / "poses.trc")
