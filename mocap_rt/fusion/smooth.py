@@ -7,16 +7,19 @@ then the skeleton fitted to them). Here:
 
 1. every joint's position is filtered by ``scipy.signal.filtfilt`` with a Butterworth low-pass
    of ``cutoff_hz`` (order ``ORDER``, run both ways);
-2. the body is put back on them with its own bone lengths (``retarget``): each joint's frame
-   turned by the least rotation that points its bones at the filtered children (Kabsch over
-   several children), the twist about a bone kept; a joint without children keeps its angles;
+2. the body is put back on them with its own bone lengths (``retarget``), from the root outwards:
+   each joint's frame turned by the least rotation that points its bone at the filtered child from
+   where the joint itself has come to lie (Kabsch over several children), the twist about the bone
+   kept; each arm and leg bent as the per-frame analytic IK bends it (``_two_link``), to reach its
+   wrist's (ankle's) filtered position from where its shoulder (hip) came to lie, in the plane of
+   its filtered elbow (knee); a joint without children keeps its angles;
 3. the angles read from those frames, each under the name of its rotation nearer to the
    solver's (``_closest_name``), and the joints recomputed by forward kinematics.
 
 Filtering the angles instead (the root's rotation and every joint's) is worse: the per-frame
 solve makes the limbs reach their cues from wherever the trunk is, and a filtered trunk with
 filtered limbs no longer reaches them (the CMU modern dance, 62.2 -> 64.0 mm, where filtering
-the points gives 61.9; docs/body.md, "Offline smoothing"). The filtered pose turns the joints
+the points gives 61.6; docs/body.md, "Offline smoothing"). The filtered pose turns the joints
 that the per-frame model holds fixed (the rigid trunk, the elbow's side swing) by a few
 degrees (median 7, p95 17 on the modern dance); putting them back to zero costs 4 mm.
 
@@ -33,8 +36,11 @@ from scipy.signal import butter, filtfilt
 from scipy.spatial.transform import Rotation
 
 from mocap_rt.body.kinematics import angles_from_frames, forward_kinematics
-from mocap_rt.body.skeleton import BodyModel
+from mocap_rt.body.skeleton import BodyModel, J
 
+# the limbs bent by two-link IK: root -> (middle, end)
+_LIMBS = {J[f"{root}_{s}"]: (J[f"{mid}_{s}"], J[f"{end}_{s}"])
+          for s in ("l", "r") for root, mid, end in (("shoulder", "elbow", "wrist"), ("hip", "knee", "ankle"))}
 ORDER = 2            # the Butterworth's order; run both ways, 4 (Pose2Sim's default)
 JUMP_M = 0.5         # a joint moving more than this in one frame starts a new run
 
@@ -91,17 +97,38 @@ def _kabsch(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return V @ D @ np.swapaxes(U, 1, 2)
 
 
+def _two_link(root: np.ndarray, goal: np.ndarray, pole: np.ndarray, a: float, b: float) -> np.ndarray:
+    """(N, 3) the middle joints of two-link chains from ``root`` (N, 3) reaching for ``goal``
+    (N, 3), bones ``a`` then ``b`` long, bent in the plane of root, goal and ``pole`` (N, 3)."""
+    reach = goal - root
+    d = np.linalg.norm(reach, axis=1)
+    u = reach / np.maximum(d, 1e-12)[:, None]
+    side = pole - root
+    side -= u * np.einsum("ij,ij->i", side, u)[:, None]
+    v = side / np.maximum(np.linalg.norm(side, axis=1), 1e-12)[:, None]
+    d = np.clip(d, abs(a - b) + 1e-9, a + b - 1e-9)
+    cos = np.clip((a * a + d * d - b * b) / (2 * a * d), -1.0, 1.0)
+    return root + a * (cos[:, None] * u + np.sqrt(1 - cos * cos)[:, None] * v)
+
+
 def retarget(model: BodyModel, rotations: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """World frames (N, J, 3, 3) of ``model`` moved from ``rotations`` (N, J, 3, 3) so that its
     bones point at the joint positions ``targets`` (N, J, 3) (module doc, step 2), from the root
     (at its target) outwards: each joint's bones aimed from where the joint has come to lie, so
-    that what its parents missed is not passed on down the limb."""
+    that what its parents missed is not passed on; each limb (shoulder or hip ->
+    elbow or knee -> wrist or ankle) bent as the analytic IK bends it, to reach its end's target
+    from where its root came to lie, in the plane of its middle joint's target."""
     out = np.empty_like(rotations)
+    targets = targets.copy()
     at = np.empty_like(targets)                    # where the joints come to lie
     at[:, 0] = targets[:, 0]
     for j, p in enumerate(model.parents):
         kids = np.flatnonzero(model.parents == j)
         R = rotations[:, j]
+        if j in _LIMBS:
+            mid, end = _LIMBS[j]
+            targets[:, mid] = _two_link(at[:, j], targets[:, end], targets[:, mid],
+                                        float(np.linalg.norm(model.offsets[mid])), float(np.linalg.norm(model.offsets[end])))
         aim = kids[np.linalg.norm(model.offsets[kids], axis=1) > 1e-9]
         if aim.size == 0:
             out[:, j] = out[:, p] @ np.swapaxes(rotations[:, p], 1, 2) @ R

@@ -58,7 +58,7 @@ def test_a_slow_motion_passes_unchanged_and_keeps_its_angle_names():
     truth = joints_of(root, angles)
     assert np.abs(joints - truth).max() < 0.01       # 1 Hz passes a 6 Hz low-pass nearly whole
     inner = slice(10, -10)
-    np.testing.assert_allclose(a[inner, J["shoulder_r"]], angles[inner, J["shoulder_r"]], atol=1e-6)
+    np.testing.assert_allclose(a[inner, J["shoulder_r"]], angles[inner, J["shoulder_r"]], atol=5e-3)
 
 
 def test_runs_are_not_blended_across_a_jump_or_a_gap_and_unposed_frames_stay():
@@ -83,10 +83,10 @@ def test_a_limb_at_rest_is_not_filtered():
     valid = np.ones((n, 20), bool)
     valid[:, [J["elbow_r"], J["wrist_r"], J["hand_r"]]] = False
     rng = np.random.default_rng(1)
-    angles[:, J["elbow_r"], 0] += rng.normal(0, 0.2, n)     # jitter the filter would take out
+    angles[:, J["elbow_r"], 0] += rng.uniform(-0.2, 0.2, n)     # jitter the filter would take out (bent 0.1-1.5)
     r, a, _ = smooth_poses(MODEL, root, angles, np.ones(n, bool), valid, FPS, 4.0)
-    # its jitter stays; it moves only as far as the filtered trunk it hangs from (< 1 mrad here)
-    np.testing.assert_allclose(a[:, J["elbow_r"]], angles[:, J["elbow_r"]], atol=2e-3)
+    # its jitter (up to 0.2 rad) stays: it bends only as far as reaching its hand from the filtered trunk takes
+    np.testing.assert_allclose(a[:, J["elbow_r"]], angles[:, J["elbow_r"]], atol=5e-3)
 
 
 @pytest.mark.parametrize("hz", [0.0, -1.0, 15.0, 20.0])
@@ -94,3 +94,13 @@ def test_a_cutoff_outside_the_band_is_refused(hz):
     root, angles = motion(20)
     with pytest.raises(ValueError, match="cutoff"):
         smooth_poses(MODEL, root, angles, np.ones(20, bool), np.ones((20, 20), bool), FPS, hz)
+
+
+def test_a_limb_reaches_its_end_bent_towards_its_pole():
+    from mocap_rt.fusion.smooth import _two_link
+
+    root, goal = np.zeros((2, 3)), np.array([[0, 0, -1.2], [0, 0, -3.0]])   # in reach; too far: stretched
+    pole = np.array([[0, 1.0, -0.6], [0, 1.0, -0.6]])
+    mid = _two_link(root, goal, pole, 1.0, 1.0)
+    np.testing.assert_allclose(mid[0], [0, 0.8, -0.6], atol=1e-9)        # cos = (1 + 1.44 - 1) / 2.4 = 0.6
+    np.testing.assert_allclose(mid[1], [0, 0, -1.0], atol=1e-4)
