@@ -36,6 +36,7 @@ import numpy as np
 
 from bench.suite import ensure_recording, select, suite_clips
 from bench.yardstick import header, timing_lock, yardstick_ms
+from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.names import C_FOOT_L, C_FOOT_R, CUE_NAMES, J
 
 TARGETS = {"mpjpe_mm": 30.0, "mirrored_pct": 0.0, "heading_p95_deg": 15.0, "elbow_mm": 40.0, "knee_mm": 40.0}
@@ -57,7 +58,6 @@ def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False, 
     from mocap_rt.body.estimate import bone_lengths_from_joints
     from mocap_rt.fusion.evaluate import suite_metrics
     from mocap_rt.fusion.offline import process_recording
-    from mocap_rt.fusion.config import FusionConfig
     from mocap_rt.io.recording import Recording
 
     rec = Recording(rec_dir)
@@ -159,12 +159,14 @@ def main(argv: list[str] | None = None) -> int:
     which = "quick" if args.quick else "held-out" if args.held_out else "all" if args.all else "default"
     clips = select(suite_clips(which), args.clips)
     size = tuple(int(v) for v in args.size.lower().split("x"))
+    smooth_hz = FusionConfig().offline_smooth_hz if args.smooth_hz is None else args.smooth_hz
     with timing_lock(not args.no_lock):
         ys = yardstick_ms()
     print(header(ys))
     print(f"suite '{which if not args.clips else 'selected'}': {len(clips)} clips, 6-camera ring {size[0]}x{size[1]} "
           f"(render seed {args.render_seed}), "
-          f"30 fps, mocap-rt process (closed loop, {'truth' if args.truth_bones else 'estimated'} bones); "
+          f"30 fps, mocap-rt process (closed loop, {'truth' if args.truth_bones else 'estimated'} bones, "
+          f"{'not smoothed, as live' if smooth_hz == 0 else f'smoothed offline at {smooth_hz:g} Hz'}); "
           "errors mm, angles deg")
     results, t0 = {}, time.perf_counter()
     for c in clips:
