@@ -116,9 +116,7 @@ def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: i
 def _smooth(tracker: BodyTracker, results: list[FusionResult], cutoff_hz: float) -> None:
     """The poses of ``results`` low-passed both ways (``fusion.smooth``), in place: their root,
     angles, joints and BVH rows."""
-    posed = np.array([np.isfinite(r.root_pos).all() for r in results])
-    if posed.sum() < 2:
-        return
+    posed = np.array([np.isfinite(r.root_pos).all() for r in results], dtype=bool)
     solver = tracker.published
     root, angles, joints = smooth_poses(solver.pose_model, np.array([r.root_pos for r in results]),
                                         np.array([r.angles for r in results]), posed,

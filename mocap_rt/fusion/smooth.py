@@ -155,7 +155,7 @@ def smooth_poses(model: BodyModel, root: np.ndarray, angles: np.ndarray, posed: 
     root, angles = root.copy(), angles.copy()
     idx = np.flatnonzero(posed)
     joints = np.full(angles.shape, np.nan)
-    if idx.size < 2:
+    if idx.size == 0:
         return root, angles, joints
     fk = [forward_kinematics(model, root[i], angles[i]) for i in idx]
     P = np.array([f[0] for f in fk])

@@ -104,3 +104,13 @@ def test_a_limb_reaches_its_end_bent_towards_its_pole():
     mid = _two_link(root, goal, pole, 1.0, 1.0)
     np.testing.assert_allclose(mid[0], [0, 0.8, -0.6], atol=1e-9)        # cos = (1 + 1.44 - 1) / 2.4 = 0.6
     np.testing.assert_allclose(mid[1], [0, 0, -1.0], atol=1e-4)
+
+
+def test_one_posed_frame_or_none_passes_as_it_is():
+    root, angles = motion(5)
+    for n_posed in (0, 1):
+        posed = np.arange(5) < n_posed
+        r, a, joints = smooth_poses(MODEL, root, angles, posed, np.ones((5, 20), bool), FPS, 4.0)
+        np.testing.assert_allclose(a, angles, atol=1e-6)
+        assert np.isnan(joints[~posed]).all()
+    np.testing.assert_allclose(joints[0], joints_of(root[:1], angles[:1])[0], atol=1e-12)
