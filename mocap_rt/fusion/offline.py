@@ -11,11 +11,13 @@ Writes ``OUT_DIR/poses.bvh``, ``OUT_DIR/bones.toml`` (the bone lengths used,
 given or estimated; reusable with ``--bones``), ``OUT_DIR/poses.c3d`` and ``OUT_DIR/poses.trc``
 (the joints as markers, ``mocap_rt.io.exports``) and ``OUT_DIR/poses.npz``:
 
-* ``joints`` (F, J, 3) float64 metres, world; NaN before the first full pose;
+* ``joints`` (F, J, 3) float64 metres, world; NaN before the first full pose; smoothed
+  (``FusionConfig.offline_smooth_hz``) like the BVH's poses;
 * ``joint_names`` (J,) str (the truth's names), ``frames`` (F,) int;
 * ``cues`` (F, 6, 3) the per-frame triangulated cues (NaN = not reconstructed),
   ``cue_names``, ``cue_valid`` (F, 6) bool, ``joint_valid`` (F, J) bool (False where a
-  limb's cue was missing and the limb was put at rest), ``pan_rad`` (F,), ``bone_lengths`` (11,)
+  limb's cue was missing and the limb was put at rest), ``pan_rad`` (F,) (the tracker's heading
+  per frame, not smoothed), ``bone_lengths`` (11,)
   and ``bone_length_names``.
 """
 
