@@ -2,8 +2,8 @@
 
 The live service publishes each pose when its frame ends, so it can only look back. Offline
 the whole clip is known, and the tools of the field low-pass it both ways with no lag
-(Pose2Sim and FreeMoCap: a Butterworth filter run forwards and backwards over the 3D points,
-then the skeleton fitted to them). Here:
+(Pose2Sim and FreeMoCap run a Butterworth filter forwards and backwards over the 3D points;
+Pose2Sim's default is order 4 at 6 Hz, and OpenSim then fits the skeleton to them). Here:
 
 1. every joint's position is filtered by ``scipy.signal.filtfilt`` with a Butterworth low-pass
    of ``cutoff_hz`` (order ``ORDER``, run both ways);
