@@ -48,13 +48,12 @@ COLS = (("MPJPE", "mpjpe_mm", 6, 0), ("PA", "pa_mpjpe_mm", 5, 0), ("mirr%", "mir
 LEGS = [J[n] for s in ("l", "r") for n in (f"knee_{s}", f"ankle_{s}", f"foot_{s}")]
 
 
-def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False, smooth_hz: float | None = None) -> dict:
+def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False,
+             smooth_hz: float = FusionConfig.offline_smooth_hz) -> dict:
     """Process one recording and score it (``legs=False``: the desktop rig, legs not scored;
     ``truth_bones``: the truth's bone lengths instead of the estimate, to tell the estimate's
     share of the error from the rest; ``smooth_hz``: the offline smoothing's cutoff, 0 = off:
-    the live service's poses; None: the default)."""
-    from dataclasses import replace
-
+    the live service's poses)."""
     from mocap_rt.body.estimate import bone_lengths_from_joints
     from mocap_rt.fusion.evaluate import suite_metrics
     from mocap_rt.fusion.offline import process_recording
@@ -63,9 +62,8 @@ def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False, 
     rec = Recording(rec_dir)
     truth = {k: rec.truth[k] for k in ("frames", "joints", "cues", "joint_names")}
     rec.close()
-    config = FusionConfig(bone_lengths=bone_lengths_from_joints(truth["joints"]) if truth_bones else None)
-    if smooth_hz is not None:
-        config = replace(config, offline_smooth_hz=smooth_hz)
+    config = FusionConfig(bone_lengths=bone_lengths_from_joints(truth["joints"]) if truth_bones else None,
+                          offline_smooth_hz=smooth_hz)
     with tempfile.TemporaryDirectory() as tmp, timing_lock(lock):
         t0 = time.perf_counter()
         out = process_recording(rec_dir, tmp, config, progress=False)
@@ -150,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render-seed", type=int, default=0,
                     help="the studio render's seed (camera gains, flicker, sensor noise): another capture of "
                          "the same motions, to tell a change's effect from the suite's noise floor")
-    ap.add_argument("--smooth-hz", type=float, default=None,
+    ap.add_argument("--smooth-hz", type=float, default=FusionConfig.offline_smooth_hz,
                     help="the offline smoothing's cutoff (FusionConfig.offline_smooth_hz); 0: off, the poses "
                          "the live service publishes")
     ap.add_argument("--truth-bones", action="store_true",
@@ -159,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     which = "quick" if args.quick else "held-out" if args.held_out else "all" if args.all else "default"
     clips = select(suite_clips(which), args.clips)
     size = tuple(int(v) for v in args.size.lower().split("x"))
-    smooth_hz = FusionConfig().offline_smooth_hz if args.smooth_hz is None else args.smooth_hz
+    smooth_hz = args.smooth_hz
     with timing_lock(not args.no_lock):
         ys = yardstick_ms()
     print(header(ys))
@@ -171,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     results, t0 = {}, time.perf_counter()
     for c in clips:
         rec = ensure_recording(c, size, render_seed=args.render_seed)
-        results[c.name] = run_clip(rec, not args.no_lock, truth_bones=args.truth_bones, smooth_hz=args.smooth_hz)
+        results[c.name] = run_clip(rec, not args.no_lock, truth_bones=args.truth_bones, smooth_hz=smooth_hz)
         print(_row(c.name, results[c.name]), flush=True)
     print(f"\n== motion suite ({len(clips)} clips, {time.perf_counter() - t0:.0f} s) ==")
     print_tables(results, ys)
@@ -182,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         for c in select(suite_clips("all"), "proc_clap_s0,proc_hands_cross_face_s0"):
             desktop[c.name] = run_clip(ensure_recording(c, size, rig="desktop", render_seed=args.render_seed),
                                        not args.no_lock, legs=False,
-                                       truth_bones=args.truth_bones, smooth_hz=args.smooth_hz)
+                                       truth_bones=args.truth_bones, smooth_hz=smooth_hz)
             print(_row(c.name, desktop[c.name]))
     if args.json:
         with open(args.json, "w") as fh:

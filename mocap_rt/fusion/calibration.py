@@ -5,10 +5,9 @@
 (or at ``finish``), ``estimate.estimate_bone_lengths`` scales the default adult to the cues;
 then, with ``FusionConfig.fit_bone_lengths``, ``body.calibrate.fit_state_and_published`` fits the
 proportions to the kept silhouettes, the state's and the published pose's. That fit takes 3-7 s
-of CPU: in the background
-(``background``, the service) it runs in another process at the idle priority
-(``calibrate.BackgroundFit``, started with the window, before the frames) and ``poll`` hands
-over its lengths once it is done; else (offline) it runs in the frame that calibrates.
+of CPU: in the background (``background``, the service) it runs in another process at the idle
+priority (``calibrate.BackgroundFit``, started with the window, before the frames) and ``poll``
+hands over its lengths once it is done; else (offline) it runs in the frame that calibrates.
 """
 
 from __future__ import annotations

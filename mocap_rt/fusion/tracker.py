@@ -56,7 +56,7 @@ from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import N_JOINTS, BoneLengths, J
 from mocap_rt.body.visible import CUE_CAPSULES, OFFSET_CAPSULES, part_offsets, part_shapes, pose_visible_parts, rig_rays
 from mocap_rt.cues import CameraCues, CuePrediction
-from mocap_rt.fusion.calibration import LengthCalibration
+from mocap_rt.fusion.calibration import LengthCalibration, Lengths
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.filter import CueFilter
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityState, crossed_legs_cm2, decide,
@@ -209,7 +209,7 @@ class BodyTracker:
         if not self.calibrated:
             self._calibrated_to(self.calibration.add(X, axes, cues_ik, targets))
 
-    def _calibrated_to(self, lengths: tuple[BoneLengths, BoneLengths] | None) -> None:
+    def _calibrated_to(self, lengths: Lengths | None) -> None:
         if lengths is not None:
             self._set_lengths(*lengths)
             self.calibrated = True
