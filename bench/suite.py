@@ -110,14 +110,28 @@ def _procedural_named(name: str) -> SuiteClip | None:
     return None
 
 
+def _window_named(name: str) -> SuiteClip | None:
+    """``<shared clip>@<start s>``: another 4-s window of a shared recording (fresh held-out real
+    motion, e.g. ``cmu_01_01_playground_forward_jumps@14``), else None."""
+    stem, at, start = name.partition("@")
+    shared = {c.name: c for c in _shared()}
+    if not at or stem not in shared:
+        return None
+    try:
+        start_s = float(start)
+    except ValueError:
+        return None
+    return SuiteClip(name, shared[stem].motion, None, start_s, SEGMENT_S, "held-out") if start_s >= 0 else None
+
+
 def select(clips: list[SuiteClip], names: str | None) -> list[SuiteClip]:
     """Clips whose name is in the comma-separated ``names`` (all when None; ``proc_<motion>_s<seed>`` at
-    any seed too); unknown names raise."""
+    any seed and ``<shared clip>@<start s>`` too); unknown names raise."""
     if not names:
         return clips
     pool = {c.name: c for c in suite_clips("all") + clips}
     wanted = [n.strip() for n in names.split(",") if n.strip()]
-    pool.update({n: c for n in wanted if n not in pool and (c := _procedural_named(n)) is not None})
+    pool.update({n: c for n in wanted if n not in pool and (c := _procedural_named(n) or _window_named(n)) is not None})
     unknown = [n for n in wanted if n not in pool]
     if unknown:
         raise SystemExit(f"unknown suite clip(s) {unknown}; known: {', '.join(sorted(pool))}")
