@@ -73,6 +73,9 @@ class FitConfig:
     published_swivel_search_deg: float = 60.0   # the published pose's swivels searched again this far around
     published_swivel_prior_cost: float = 0.0    # the state's, at this prior (0 = off; fusion.solver), then
     published_swivel_refine: int = 2            # the step halved this many times around the best
+    published_pelvis_twist_deg: float = 45.0    # the published pose's pelvis turned to the knees' hinges, at
+                                                # most this far (0 = off; body.pelvis, fusion.solver)
+    pelvis_twist_prior: float = 0.3             # ... against this weight for no turn (a knee bent 90 deg: 1)
 
 
 @njit(cache=True, nogil=True)

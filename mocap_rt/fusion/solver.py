@@ -16,7 +16,10 @@ state, are unchanged by them:
    a degree), which hold the identity: a weaker prior there flipped clips and lost cues
    (docs/body.md, "The swivels' prior");
 2. the trunk hung from the head cue and tilted to the silhouettes (``BodyFitter.refine_trunk``)
-   where that fits them better.
+   where that fits them better;
+3. the pelvis turned about the spine to where the knees' hinges point (``body.pelvis``, at most
+   ``FitConfig.published_pelvis_twist_deg``; with views, which placed the knees): the model's trunk
+   is rigid, a person's pelvis turns against the shoulders.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from mocap_rt.body.bvh_export import bvh_frame, bvh_skeleton
 from mocap_rt.body.ccd import solve_ccd
 from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.kinematics import forward_kinematics
+from mocap_rt.body.pelvis import twist_pelvis
 from mocap_rt.body.silhouette import SilhouetteTargets
 from mocap_rt.body.skeleton import END_EFFECTORS, BoneLengths, J, body_model
 from mocap_rt.fusion.config import FusionConfig
@@ -76,16 +80,26 @@ class PoseSolver:
         """The published pose for given body axes and the state's ``swivel`` (module doc): the
         swivels searched again and the trunk refined (``hung``) where that fits the silhouettes
         better, else the plain pose (``plain`` if given: the plain pose of ``swivel``, solved
-        already). Missing hand/foot cues (NaN rows) are filled from the rest pose; with
+        already); then its pelvis turned to the knees (``twisted``). Missing hand/foot cues (NaN rows) are filled from the rest pose; with
         ``targets`` (views) the elbows are chosen on the silhouettes as the fit chose them
         (``FitConfig.elbow_silhouette``)."""
         searched = self.published_swivel(cues_ik, axes, swivel, targets)
         if searched is not None:
             swivel, plain = searched, None
-        hung = self.hung(cues_ik, axes, swivel, targets)
-        if hung is not None:
-            return hung
-        return plain if plain is not None else self.plain(cues_ik, axes, swivel, targets)
+        pose = self.hung(cues_ik, axes, swivel, targets)
+        if pose is None:
+            pose = plain if plain is not None else self.plain(cues_ik, axes, swivel, targets)
+        return self.twisted(pose, targets)
+
+    def twisted(self, pose: Pose, targets: SilhouetteTargets | None) -> Pose:
+        """``pose`` with its pelvis turned to the knees' hinges (module doc, step 3; ``body.pelvis``):
+        with views only, where the silhouettes placed the knees."""
+        fit = self.config.fit
+        if fit.published_pelvis_twist_deg <= 0 or targets is None or targets.n_views == 0:
+            return pose
+        root, angles, _ = pose
+        angles, _ = twist_pelvis(self.pose_model, root, angles, fit.pelvis_twist_prior, fit.published_pelvis_twist_deg)
+        return root, angles, forward_kinematics(self.pose_model, root, angles)[0]
 
     def published_swivel(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
                          targets: SilhouetteTargets | None) -> np.ndarray | None:

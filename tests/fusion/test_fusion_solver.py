@@ -63,8 +63,8 @@ def _middle_error_mm(pose, truth):
 def test_the_published_swivels_reach_what_the_state_holds_back(frames):
     """From the default poles (the state's swivels after a prior that holds them), the published
     pose finds the subject's flared elbows and turned knees on the silhouettes; the trunk refinement
-    off so that the swivels alone are measured."""
-    config = FusionConfig(fit=FitConfig(refine_trunk=False))
+    and the pelvis's turn off so that the swivels alone are measured."""
+    config = FusionConfig(fit=FitConfig(refine_trunk=False, published_pelvis_twist_deg=0.0))
     solver = PoseSolver(LENGTHS, config)
     off = PoseSolver(LENGTHS, replace(config, fit=replace(config.fit, published_swivel_search_deg=0.0)))
     coarse = PoseSolver(LENGTHS, replace(config, fit=replace(config.fit, published_swivel_refine=0)))
