@@ -77,6 +77,13 @@ class FitConfig:
                                                 # most this far (0 = off; body.pelvis, fusion.solver)
     pelvis_twist_prior: float = 0.3             # ... against this weight for no turn (a knee bent 90 deg: 1)
 
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.published_pelvis_twist_deg <= 90.0:
+            raise ValueError("FitConfig.published_pelvis_twist_deg must be in [0, 90] degrees (0 = off), got "
+                             f"{self.published_pelvis_twist_deg}")
+        if not self.pelvis_twist_prior >= 0.0:
+            raise ValueError(f"FitConfig.pelvis_twist_prior must be >= 0, got {self.pelvis_twist_prior}")
+
 
 @njit(cache=True, nogil=True)
 def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from mocap_rt.body.fit import FitConfig
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.pelvis import twist_pelvis
 from mocap_rt.body.skeleton import BoneLengths, J, body_model
@@ -81,3 +82,10 @@ def test_one_bent_knee_turns_the_pelvis_less_than_two():
     _, one = twist_pelvis(MODEL, ROOT, a, prior=0.3, max_deg=45.0)
     _, two = twist_pelvis(MODEL, ROOT, pose(30.0), prior=0.3, max_deg=45.0)
     assert 0.0 < abs(one) < abs(two)
+
+
+@pytest.mark.parametrize("field, value", [("published_pelvis_twist_deg", -1.0), ("published_pelvis_twist_deg", 120.0),
+                                          ("pelvis_twist_prior", -0.1), ("pelvis_twist_prior", float("nan"))])
+def test_a_turn_or_prior_out_of_range_is_refused_by_name(field, value):
+    with pytest.raises(ValueError, match=f"FitConfig.{field}"):
+        FitConfig(**{field: value})
