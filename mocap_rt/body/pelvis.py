@@ -15,7 +15,7 @@ the pelvis's right, is how far that leg's hinge is turned from the pelvis's. The
 about its own long axis (the spine; the torso joint lies on it, so it does not move) by the
 weighted mean of the two legs' angles, each weighted by how much of the hinge the knee's bend
 defines (|hinge| = sin of the knee's flexion, its part in the transverse plane) against a
-``prior`` weight for no turn (a straight leg says nothing), at most ``max_rad``. The torso and
+``prior`` weight for no turn (a straight leg says nothing), at most ``max_deg``. The torso and
 everything above it keep their world frames; each leg is bent again by two-link IK from its
 moved hip to its ankle, in the plane of its knee; ankles and feet keep their frames.
 

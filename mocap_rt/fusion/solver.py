@@ -80,9 +80,9 @@ class PoseSolver:
         """The published pose for given body axes and the state's ``swivel`` (module doc): the
         swivels searched again and the trunk refined (``hung``) where that fits the silhouettes
         better, else the plain pose (``plain`` if given: the plain pose of ``swivel``, solved
-        already); then its pelvis turned to the knees (``twisted``). Missing hand/foot cues (NaN rows) are filled from the rest pose; with
-        ``targets`` (views) the elbows are chosen on the silhouettes as the fit chose them
-        (``FitConfig.elbow_silhouette``)."""
+        already); then its pelvis turned to the knees (``twisted``). Missing hand/foot cues (NaN
+        rows) are filled from the rest pose; with ``targets`` (views) the elbows are chosen on the
+        silhouettes as the fit chose them (``FitConfig.elbow_silhouette``)."""
         searched = self.published_swivel(cues_ik, axes, swivel, targets)
         if searched is not None:
             swivel, plain = searched, None

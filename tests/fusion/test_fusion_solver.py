@@ -91,3 +91,20 @@ def test_the_plain_pose_given_is_the_one_returned_when_nothing_refines_it(frames
     cues, axes, _, _ = frames[0]
     plain = solver.plain(cues, axes, np.zeros(4), None)
     assert solver.solve(cues, axes, np.zeros(4), None, plain=plain) is plain
+
+
+def test_the_published_pelvis_turns_to_the_knees_and_the_rest_of_the_body_stays(frames):
+    """The published pose's last step (``twisted``, ``body.pelvis``) on rendered frames whose knees
+    the swivels turned: it turns the pelvis only where the knees' hinges point away from it, and
+    keeps the trunk above, the arms, the head, the ankles and the feet where the pose had them."""
+    on = PoseSolver(LENGTHS, FusionConfig())
+    off = PoseSolver(LENGTHS, FusionConfig(fit=FitConfig(published_pelvis_twist_deg=0.0)))
+    kept = [J[n] for n in ("torso", "neck", "head", "shoulder_l", "elbow_l", "hand_l", "shoulder_r", "elbow_r",
+                           "hand_r", "ankle_l", "foot_l", "ankle_r", "foot_r")]
+    moved = 0
+    for cues, axes, targets, _ in frames:
+        a, b = on.solve(cues, axes, SWIVEL, targets), off.solve(cues, axes, SWIVEL, targets)
+        np.testing.assert_allclose(a[2][kept], b[2][kept], atol=1e-6)
+        np.testing.assert_array_equal(a[0], b[0])
+        moved += not np.allclose(a[2][[J["hip_l"], J["hip_r"]]], b[2][[J["hip_l"], J["hip_r"]]], atol=1e-4)
+    assert moved >= 3       # the knees turned by the swivels turn the pelvis on most frames
