@@ -159,6 +159,8 @@ def ensure_recording(clip: SuiteClip, size: tuple[int, int] = (640, 480), rig: s
             shutil.rmtree(out)                   # an interrupted earlier render
         bvh, name = load_motion(clip.spec(), clip.variant)
         duration = (bvh.n_frames - 1) * bvh.frame_time_s
+        if "@" in clip.name and clip.start_s >= duration:        # a named window must lie in its recording
+            raise SystemExit(f"{clip.name}: starts at {clip.start_s:g} s, but {clip.motion} is {duration:.1f} s long")
         start = min(clip.start_s, max(0.0, duration - clip.seconds))
         seconds = min(clip.seconds, duration - start)
         synthesize(bvh, out, rig=make_rig(rig, size=size), fps=30.0, seconds=seconds, start_s=start,

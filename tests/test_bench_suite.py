@@ -15,3 +15,13 @@ def test_a_shared_recording_at_another_start_is_a_held_out_window(data_dir):
 def test_a_window_that_names_no_recording_or_start_is_refused(data_dir, name):
     with pytest.raises(SystemExit, match="unknown suite clip"):
         select(suite_clips("default"), name)
+
+
+def test_a_window_past_the_recordings_end_is_refused_before_rendering(data_dir, tmp_path, monkeypatch):
+    import bench.suite as suite
+
+    monkeypatch.setattr(suite, "CACHE", tmp_path)
+    (late,) = select(suite_clips("default"), "cmu_02_01_walk@9")
+    with pytest.raises(SystemExit, match=r"cmu_02_01_walk@9: starts at 9 s, but cmu/cmu_02_01_walk.bvh is 2.8 s long"):
+        suite.ensure_recording(late)
+    assert not any(p.is_dir() for p in tmp_path.iterdir())      # nothing rendered
