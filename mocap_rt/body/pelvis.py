@@ -30,17 +30,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from mocap_rt.body.kinematics import euler_xyz_from_matrix, fk_kernel
+from mocap_rt.body.kinematics import euler_xyz_from_matrix, fk_kernel, other_xyz_name
+from mocap_rt.body.limb_geometry import _cross, _two_link
 from mocap_rt.body.skeleton import N_JOINTS, BodyModel, J
 
 # (hip, knee, ankle) of each leg, and the torso (the pelvis's child on its long axis)
 _LEGS = np.array([[J["hip_l"], J["knee_l"], J["ankle_l"]], [J["hip_r"], J["knee_r"], J["ankle_r"]]], np.int64)
 _TORSO = J["torso"]
-
-
-@njit(cache=True, nogil=True)
-def _cross(a, b):
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 @njit(cache=True, nogil=True)
@@ -65,8 +61,8 @@ def _local_angles(parent_world, rest_local, world, reference):
     rotation (|Y| <= 90 deg, or (x + pi, pi - y, z + pi)) nearer to ``reference`` (3,)."""
     M = np.ascontiguousarray((parent_world @ rest_local).T @ world)
     a = euler_xyz_from_matrix(M)
-    b = np.array([a[0] + np.pi if a[0] <= 0 else a[0] - np.pi, np.pi - a[1] if a[1] >= 0 else -np.pi - a[1],
-                  a[2] + np.pi if a[2] <= 0 else a[2] - np.pi])
+    x, y, z = other_xyz_name(a[0], a[1], a[2])
+    b = np.array([x, y, z])
     da = 0.0
     db = 0.0
     for i in range(3):
@@ -113,17 +109,9 @@ def _twist(parents, offsets, rest_local, legs, torso, root, angles, prior, max_r
     for leg in range(2):
         h, k, a = legs[leg, 0], legs[leg, 1], legs[leg, 2]
         hip = root + Rp2 @ offsets[h]
-        la = np.sqrt(offsets[k] @ offsets[k])
-        lb = np.sqrt(offsets[a] @ offsets[a])
-        reach = pos[a] - hip
-        d = np.sqrt(reach @ reach)
-        uu = reach / max(d, 1e-12)
-        side = pos[k] - hip
-        side = side - uu * (side @ uu)
-        vv = side / max(np.sqrt(side @ side), 1e-12)
-        d = min(max(d, abs(la - lb) + 1e-9), la + lb - 1e-9)
-        cs = min(max((la * la + d * d - lb * lb) / (2.0 * la * d), -1.0), 1.0)
-        knee = hip + la * (cs * uu + np.sqrt(1.0 - cs * cs) * vv)
+        pole = pos[k] - hip             # the knee stays in its plane
+        knee = _two_link(hip, pos[a], np.sqrt(offsets[k] @ offsets[k]), np.sqrt(offsets[a] @ offsets[a]),
+                         pole / max(np.sqrt(pole @ pole), 1e-12))[0]
         W_hip = _least_rotation(pos[k] - pos[h], knee - hip) @ rot[h]
         W_knee = _least_rotation(pos[a] - pos[k], pos[a] - knee) @ rot[k]
         out[h] = _local_angles(Rp2, rest_local[h], W_hip, angles[h])
