@@ -35,7 +35,7 @@ import numpy as np
 from scipy.signal import butter, filtfilt
 from scipy.spatial.transform import Rotation
 
-from mocap_rt.body.kinematics import angles_from_frames, forward_kinematics
+from mocap_rt.body.kinematics import angles_from_frames, forward_kinematics, other_xyz_name
 from mocap_rt.body.skeleton import BodyModel, J
 
 # the limbs bent by two-link IK: root -> (middle, end)
@@ -68,9 +68,7 @@ def _closest_name(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """X-Y-Z angles (F, 3), each row the one of its rotation's two names (|Y| <= 90 deg, or
     (x + pi, pi - y, z + pi) wrapped) nearer to ``reference`` (F, 3): the solver's names, so
     that a BVH channel does not jump where an arm is raised over the shoulder."""
-    x, y, z = angles.T
-    other = np.column_stack([np.where(x <= 0, x + np.pi, x - np.pi), np.where(y >= 0, np.pi - y, -np.pi - y),
-                             np.where(z <= 0, z + np.pi, z - np.pi)])
+    other = np.array([other_xyz_name(*row) for row in angles.tolist()])
 
     def dist(u):
         return np.abs(np.angle(np.exp(1j * (u - reference)))).sum(axis=1)
