@@ -18,7 +18,8 @@ truth cue is >= 50 % visible and inside the image: median / p95 pixel error, wit
 hand and foot pair scored under the better left/right labelling per camera and frame
 (left/right is fusion's job, issue 10); lost = a visible cue not found or > 20 px (at 640
 wide) from its truth; longest loss (s) = the longest episode from a lost frame to the next
-frame where the cue is back; re-acquisition = the median and longest of the episodes that
+frame where the cue is back (the frames it was hidden in between included; "seen" in the
+pooled lines leaves them out); re-acquisition = the median and longest of the episodes that
 ended with the cue back. Targets (closed loop): median <= 1.5 px, p95 <= 5 px, no loss
 longer than 0.2 s; open loop: head never lost longer than 0.5 s.
 """
@@ -137,6 +138,7 @@ def _pooled(rows: list[dict]) -> dict:
                   "lost_frames": int(sum(r[n]["lost_frames"] for r in rows)),
                   "visible_frames": int(sum(r[n]["visible_frames"] for r in rows)),
                   "longest_loss_s": float(max(r[n]["longest_loss_s"] for r in rows)),
+                  "longest_seen_loss_s": float(max(r[n]["longest_seen_loss_s"] for r in rows)),
                   "reacq_median_s": _finite_median([r[n]["reacq_median_s"] for r in rows]),
                   **{k: _finite_median([r[n].get(k, np.nan) for r in rows]) for k in ("along_px", "across_px")}}
     return out
@@ -176,7 +178,10 @@ def main(argv: list[str] | None = None) -> int:
         pooled = _pooled(list(results[loop].values()))
         print(_row("ALL (pooled)", loop, pooled))
         print("   " + ", ".join(f"{n}: lost {pooled[n]['lost_frames']}/{pooled[n]['visible_frames']}, "
-                               f"longest {pooled[n]['longest_loss_s']:.2f} s" for n in CUE_NAMES))
+                               f"longest {pooled[n]['longest_loss_s']:.2f} s (seen {pooled[n]['longest_seen_loss_s']:.2f})"
+                               for n in CUE_NAMES))
+        print("   (longest: from a lost frame to the next frame the cue is back, the frames it was hidden in "
+              "between included; seen: those frames left out)")
         print("   error along / across the limb, px (median of the clips' medians; along > 0: away from the "
               "joint the blob adjoins, where collar, sleeve or trouser leg covers it): " + ", ".join(
                   f"{n} {pooled[n]['along_px']:+.2f} / {pooled[n]['across_px']:+.2f}" for n in CUE_NAMES

@@ -30,6 +30,8 @@ class FusionConfig:
     consensus_views: bool = False          # restart outlier rejection from the largest consensus set of views
                                            # (views.triangulate_cues); off: docs/body.md says why
     min_confidence: float = 0.05           # 2D cues below this are ignored
+    min_ray_angle_deg: float = 20.0        # a cue whose views' rays meet closer to parallel is not measured
+                                           # (views.ill_conditioned: two cameras facing each other); 0 = off
     fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
     duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
     use_filtered: bool = False             # IK on filtered (True) or measured (False) cues
@@ -66,6 +68,9 @@ class FusionConfig:
             raise ValueError(f"FusionConfig.ik must be one of {IK_MODES}, got {self.ik!r}")
         if self.fps <= 0:
             raise ValueError(f"FusionConfig.fps must be > 0, got {self.fps}")
+        if not 0.0 <= self.min_ray_angle_deg < 90.0:
+            raise ValueError(f"FusionConfig.min_ray_angle_deg must be in [0, 90) degrees (0 = off), "
+                             f"got {self.min_ray_angle_deg}")
         if self.offline_smooth_hz < 0:
             raise ValueError(f"FusionConfig.offline_smooth_hz must be >= 0 (0 = off), got {self.offline_smooth_hz}")
         for name in ("subject_foot_pitch_deg", "tracking_foot_pitch_deg"):

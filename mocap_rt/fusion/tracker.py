@@ -64,7 +64,8 @@ from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityS
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair,
-                                   head_on_trunk, predict_views, reject_duplicates, triangulate_cues)
+                                   head_on_trunk, ill_conditioned, predict_views, reject_duplicates,
+                                   triangulate_cues, triangulate_with_prior)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
@@ -75,6 +76,9 @@ log = logging.getLogger(__name__)
 # cues whose views may be chosen by consensus (the torso's 2D points are silhouette
 # centres that disagree across views by design; it keeps the plain drop-worst rejection)
 _CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
+# weight of the prediction in a near-parallel cue's triangulation (views.triangulate_with_prior):
+# the rays keep the directions they measure to within this fraction of the prediction's distance
+PRIOR_WEIGHT = 0.05
 _NO_CUES = np.zeros(N_CUES, dtype=bool)
 _HIPS = [J["hip_l"], J["hip_r"]]
 _FEET_ALT = ALTERNATIVES.index("feet")
@@ -136,8 +140,12 @@ class BodyTracker:
         return self.published.bvh
 
     # ------------------------------------------------------------------ 2D -> 3D
-    def triangulate(self, uv: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6)."""
+    def triangulate(self, uv: np.ndarray, w: np.ndarray, prior: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6); a cue
+        whose views' rays meet near parallel (``views.ill_conditioned``,
+        ``FusionConfig.min_ray_angle_deg``) takes its place along them from ``prior`` (6, 3) (the
+        filter's prediction; ``views.triangulate_with_prior``), or is not measured without one."""
         thr = np.full(N_CUES, self.config.max_reproj_px)
         thr[C_TORSO] = self.config.torso_max_reproj_px
         X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, thr,
@@ -154,6 +162,16 @@ class BodyTracker:
                 Xp = self._tri(uv, wp)
                 X = np.where(both[:, None], Xp, X)
                 used = np.where(both[None, :], wp > 0, used)
+        if self.config.min_ray_angle_deg > 0:
+            bad = ill_conditioned(self._proj.centers, X, used, self.config.min_ray_angle_deg)
+            if bad.any():
+                X, used = X.copy(), used.copy()
+                for k in np.flatnonzero(bad):
+                    if prior is not None and np.isfinite(prior[k]).all():
+                        X[k] = triangulate_with_prior(self.cameras, uv[:, k], np.where(used[:, k], w[:, k], 0.0),
+                                                      prior[k], PRIOR_WEIGHT)
+                    else:
+                        X[k], used[:, k] = np.nan, False
         return X, used
 
     # ------------------------------------------------------------------ body
@@ -246,7 +264,7 @@ class BodyTracker:
             uv0, (uv, w, n_fixed) = uv, fix_left_right(self._tri, self._proj, uv, w, ref)
             self.relabelled += n_fixed
             feet = follow_relabelling(feet, uv0, uv) if (feet is not None and n_fixed) else feet
-        X, used = self.triangulate(uv, w)
+        X, used = self.triangulate(uv, w, np.where(self.filter.alive[:, None], self.filter.pos, np.nan))
         valid = np.isfinite(X).all(axis=1)
         X = reject_duplicates(X, valid, used, pred, self.config.duplicate_m)
         valid = np.isfinite(X).all(axis=1)

@@ -69,19 +69,21 @@ def along_limb_errors(xy: np.ndarray, truth_xy: np.ndarray, joint_xy: np.ndarray
     return np.stack([(d * u).sum(-1), u[..., 0] * d[..., 1] - u[..., 1] * d[..., 0]], axis=-1)
 
 
-def loss_episodes(lost: np.ndarray, ok: np.ndarray) -> list[tuple[int, bool]]:
+def loss_episodes(lost: np.ndarray, ok: np.ndarray) -> list[tuple[int, bool, int]]:
     """Loss episodes of one track over frames: lost, ok (F,) bool (neither = the cue is not
     visible, which neither starts nor ends an episode). An episode starts at a lost frame
-    and lasts until the next ok frame; returns [(length in frames, re-acquired)]."""
+    and lasts until the next ok frame; returns [(length in frames, re-acquired, lost frames
+    in it)]: the last counts only the frames the cue was visible (a hand lost for one frame
+    as it goes behind the head and found in the first frame it shows again: 1)."""
     out, start = [], None
     for f in range(len(lost)):
         if lost[f] and start is None:
             start = f
         elif ok[f] and start is not None:
-            out.append((f - start, True))
+            out.append((f - start, True, int(lost[start:f].sum())))
             start = None
     if start is not None:
-        out.append((len(lost) - start, False))
+        out.append((len(lost) - start, False, int(lost[start:].sum())))
     return out
 
 
@@ -90,7 +92,9 @@ class CueTrackStats:
     """One cue over all cameras. median_px, p95_px over visible and found frames (NaN if
     none); lost_frames: visible frames not found or farther than the loss threshold;
     visible_frames; longest_loss_s over all loss episodes; reacq_median_s, reacq_max_s over
-    the episodes that ended with the cue re-acquired (NaN if none); episodes."""
+    the episodes that ended with the cue re-acquired (NaN if none); episodes;
+    longest_seen_loss_s: the longest episode counted in the frames the cue was visible only
+    (``loss_episodes``), without the frames it was hidden in between."""
 
     median_px: float
     p95_px: float
@@ -100,6 +104,7 @@ class CueTrackStats:
     reacq_median_s: float
     reacq_max_s: float
     episodes: int
+    longest_seen_loss_s: float
 
 
 def cue_track_stats(xy: np.ndarray, truth_xy: np.ndarray, visible: np.ndarray, fps: float,
@@ -114,13 +119,14 @@ def cue_track_stats(xy: np.ndarray, truth_xy: np.ndarray, visible: np.ndarray, f
     for k, name in enumerate(CUE_NAMES):
         e = err[..., k][visible[..., k] & found[..., k]]
         eps = [ep for c in range(err.shape[0]) for ep in loss_episodes(lost[c, :, k], ok[c, :, k])]
-        reacq = np.array([n for n, back in eps if back], np.float64) / fps
+        reacq = np.array([n for n, back, _ in eps if back], np.float64) / fps
         out[name] = CueTrackStats(
             float(np.median(e)) if e.size else float("nan"), float(np.percentile(e, 95)) if e.size else float("nan"),
             int(lost[..., k].sum()), int(visible[..., k].sum()),
-            max((n for n, _ in eps), default=0) / fps,
+            max((n for n, _, _ in eps), default=0) / fps,
             float(np.median(reacq)) if reacq.size else float("nan"),
-            float(reacq.max()) if reacq.size else float("nan"), len(eps))
+            float(reacq.max()) if reacq.size else float("nan"), len(eps),
+            max((n for _, _, n in eps), default=0) / fps)
     return out
 
 

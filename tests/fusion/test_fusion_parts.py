@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.views import RigProjector, frontal_pair, head_on_trunk, predict_views, triangulate_cues
+from mocap_rt.fusion.views import (RigProjector, frontal_pair, head_on_trunk, ill_conditioned, predict_views,
+                                   triangulate_cues, triangulate_with_prior)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import ring_rig
 
@@ -94,6 +95,42 @@ def test_triangulation_rejects_an_outlier_view():
     np.testing.assert_allclose(Xh, X, atol=1e-6)
     assert not used[2, 0] and used[:, 1].all() and used[:, 0].sum() == 5
     assert np.nanmax(res[used]) < 1e-3
+
+
+def test_two_cameras_facing_each_other_do_not_measure_depth_between_them():
+    """A hand beside the face seen by two opposite ring cameras only (the others dropped it as the
+    face's blob): their rays meet 6-9 deg from antiparallel, so 2 px of lateral error put the
+    plain triangulation 0.1-0.3 m off along the line between them (the hands crossing at the face
+    s0: 0.45 m). ``ill_conditioned`` finds it; with the filter's point as a prior the rays keep
+    what they measure and the prior decides the depth."""
+    rig = ring_rig()
+    proj, tri = RigProjector(rig.cameras), RayTriangulator(rig.cameras)
+    X = np.array([[0.08, 0.15, 1.6], [0.3, -0.2, 1.0]])
+    uv, _, _ = proj.project(X)
+    w = np.zeros((6, 2))
+    w[[1, 4], 0] = 1.0                        # cameras 1 and 4 face each other across the subject
+    w[[0, 1], 1] = 1.0                        # adjacent cameras, 60 deg apart
+    noisy = uv.copy()
+    noisy[1, 0] += [2.0, 0.0]                 # image x runs the other way in the opposite view:
+    noisy[4, 0] += [2.0, 0.0]                 # the rays move apart along the line between them
+    Xh = tri(noisy, w)
+    assert np.linalg.norm(Xh[0] - X[0]) > 0.1
+    used = w > 0
+    np.testing.assert_array_equal(ill_conditioned(proj.centers, Xh, used, 20.0), [True, False])
+    three = used.copy()
+    three[2, 0] = True                        # a third view 60 deg from one of them: conditioned
+    assert not ill_conditioned(proj.centers, Xh, three, 20.0)[0]
+    one = np.zeros_like(used)
+    one[1, 0] = True
+    assert not ill_conditioned(proj.centers, Xh, one, 20.0).any()
+    prior = X[0] + [0.03, -0.02, 0.02]
+    Xp = triangulate_with_prior(rig.cameras, noisy[:, 0], w[:, 0], prior, 0.05)
+    assert np.linalg.norm(Xp - X[0]) < 1.2 * np.linalg.norm(prior - X[0]) < np.linalg.norm(Xh[0] - X[0]) / 3
+    # exact rays and the prior on them: the point itself
+    np.testing.assert_allclose(triangulate_with_prior(rig.cameras, uv[:, 0], w[:, 0], X[0], 0.05), X[0], atol=1e-9)
+    # well-conditioned views: the prior moves the point by about prior_weight of its distance
+    Xw = triangulate_with_prior(rig.cameras, uv[:, 1], w[:, 1], X[1] + [0.1, 0.0, 0.0], 0.05)
+    assert 0.0 < np.linalg.norm(Xw - X[1]) < 0.1 * 0.05 * 2
 
 
 def test_a_head_that_views_put_on_a_hand_comes_back_on_the_trunk():

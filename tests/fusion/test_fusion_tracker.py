@@ -135,6 +135,9 @@ def test_config_errors():
         FusionConfig(subject_foot_pitch_deg=90.0)
     with pytest.raises(ValueError, match="tracking_foot_pitch_deg"):
         FusionConfig(tracking_foot_pitch_deg=float("nan"))
+    for bad in (-1.0, 90.0, float("nan")):
+        with pytest.raises(ValueError, match="min_ray_angle_deg"):
+            FusionConfig(min_ray_angle_deg=bad)
 
 
 def test_the_silhouette_fit_of_the_lengths_runs_in_the_background_and_agrees(backwards_walk_3s):

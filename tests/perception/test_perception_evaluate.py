@@ -43,7 +43,7 @@ def test_along_limb_errors_split_each_error_along_and_across_its_limb():
 def test_loss_episodes_neutral_frames_and_reacquisition():
     lost = np.array([0, 1, 1, 0, 0, 0, 1, 0, 0], bool)
     ok = np.array([1, 0, 0, 0, 1, 1, 0, 0, 0], bool)      # frame 3 not visible (neutral)
-    assert loss_episodes(lost, ok) == [(3, True), (3, False)]
+    assert loss_episodes(lost, ok) == [(3, True, 2), (3, False, 1)]
     assert loss_episodes(np.zeros(4, bool), np.ones(4, bool)) == []
 
 
@@ -61,6 +61,20 @@ def test_cue_track_stats_hand_computed():
     tor = s["torso"]
     assert tor.lost_frames == 3 and tor.longest_loss_s == pytest.approx(0.3) and np.isnan(tor.reacq_max_s)
     assert tor.p95_px > 100 and s["hand_l"].lost_frames == 0 and s["hand_l"].longest_loss_s == 0.0
+    assert h.longest_seen_loss_s == pytest.approx(0.3)
+
+
+def test_a_loss_counts_hidden_frames_but_the_seen_loss_does_not():
+    """A hand lost for one frame as it goes behind the head, hidden for 6 frames, found in the
+    first frame it shows again: an episode of 7 frames, of which 1 was seen."""
+    C, F, fps = 1, 10, 10.0
+    t = np.full((C, F, 6, 2), 100.0)
+    xy = t.copy()
+    xy[0, 2, 1] = np.nan
+    vis = np.ones((C, F, 6), bool)
+    vis[0, 3:9, 1] = False
+    hand = cue_track_stats(xy, t, vis, fps, lost_px=20.0)["hand_l"]
+    assert hand.longest_loss_s == pytest.approx(0.7) and hand.longest_seen_loss_s == pytest.approx(0.1)
 
 
 def test_truth_visible_needs_visibility_and_image_bounds():
