@@ -55,6 +55,7 @@ class FusionConfig:
     silhouettes: bool = True               # fit the body to the cameras' silhouettes when the cues carry them
     visible_offsets: bool = True           # predictions carry where the head's and hands' visible centres lie
     shoe_shapes_max_speed_mps: float = 0.5  # ... and the shoes' shapes while both feet move slower (0: never)
+    shoe_offsets: bool = True              # ... with the shoes' visible centres, cast on the published feet
     identity: IdentityConfig = field(default_factory=IdentityConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)

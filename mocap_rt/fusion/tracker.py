@@ -54,7 +54,8 @@ from mocap_rt.body.bvh_export import bvh_frame
 from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
 from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import N_JOINTS, BoneLengths, J
-from mocap_rt.body.visible import CUE_CAPSULES, OFFSET_CAPSULES, part_offsets, part_shapes, pose_visible_parts, rig_rays
+from mocap_rt.body.visible import (CUE_CAPSULES, OFFSET_CAPSULES, SHOE_CAPSULES, part_offsets, part_shapes,
+                                  pose_visible_parts, rig_rays, shoe_offsets)
 from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.calibration import LengthCalibration, Lengths
 from mocap_rt.fusion.config import FusionConfig
@@ -445,5 +446,10 @@ class BodyTracker:
             off = part_offsets(parts)
             if shapes:
                 shape = part_shapes(parts)
+                if self.config.shoe_offsets and self._published is not None:
+                    # and the shoes' visible centres, on the published feet (pitched as the
+                    # subject's; the state's flatter foot puts its trouser leg over too much shoe)
+                    pub = pose_visible_parts(self.published.pose_model, *self._published, *self._rays, SHOE_CAPSULES)
+                    off = np.where(np.isfinite(off), off, shoe_offsets(pub))
         return {name: CuePrediction(name, int(frame), xy[c], vis[c], rad[c], off[c], shape[c])
                 for c, name in enumerate(self._names)}
