@@ -77,8 +77,9 @@ log = logging.getLogger(__name__)
 # cues whose views may be chosen by consensus (the torso's 2D points are silhouette
 # centres that disagree across views by design; it keeps the plain drop-worst rejection)
 _CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
-# weight of the prediction in a near-parallel cue's triangulation (views.triangulate_with_prior):
-# the rays keep the directions they measure to within this fraction of the prediction's distance
+# weight of the filter's last estimate in a near-parallel cue's triangulation
+# (views.triangulate_with_prior): the rays keep the directions they measure to within this
+# fraction of the estimate's distance
 PRIOR_WEIGHT = 0.05
 _NO_CUES = np.zeros(N_CUES, dtype=bool)
 _HIPS = [J["hip_l"], J["hip_r"]]
@@ -146,7 +147,7 @@ class BodyTracker:
         """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6); a cue
         whose views' rays meet near parallel (``views.ill_conditioned``,
         ``FusionConfig.min_ray_angle_deg``) takes its place along them from ``prior`` (6, 3) (the
-        filter's prediction; ``views.triangulate_with_prior``), or is not measured without one."""
+        filter's last estimate; ``views.triangulate_with_prior``), or is not measured without one."""
         thr = np.full(N_CUES, self.config.max_reproj_px)
         thr[C_TORSO] = self.config.torso_max_reproj_px
         X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, thr,

@@ -11,7 +11,8 @@
   pair triangulates, the views within the threshold of its point are its inliers), then
   the worst view is dropped while its error is above the threshold and >= 3 views remain.
 * ``ill_conditioned`` — a cue whose views' rays are near parallel (two cameras facing each
-  other across the subject) is not measured: along the rays its error has no bound.
+  other across the subject) has no bound on its error along them; ``triangulate_with_prior``
+  places it there from a prior point (the tracker's: the filter's last estimate).
 * ``fix_left_right`` — a single view cannot be sure which hand (foot) is the left one:
   per view, keep the labelling that agrees with the 3D prediction, or at a cold start
   the combination of per-view labellings that triangulates best.
@@ -239,13 +240,15 @@ def triangulate_with_prior(cameras: Sequence[Camera], uv: np.ndarray, w: np.ndar
     about that fraction of the prior's distance). uv (C, 2) pixels (NaN: not seen), w (C,)."""
     A = np.zeros((3, 3))
     b = np.zeros(3)
+    total = 0.0
     for cam, p, wc in zip(cameras, uv, w):
         if wc > 0 and np.isfinite(p).all():
             o, d = cam.rays(p[None, :])
             P = np.eye(3) - np.outer(d[0], d[0])
             A += wc * P
             b += wc * P @ o[0]
-    lam = prior_weight * float(np.sum(np.where(np.isfinite(uv).all(-1), np.maximum(w, 0.0), 0.0)))
+            total += wc
+    lam = prior_weight * total
     return np.linalg.solve(A + lam * np.eye(3), b + lam * np.asarray(prior, np.float64))
 
 
