@@ -31,8 +31,8 @@ class FusionConfig:
                                            # (views.triangulate_cues); off: docs/body.md says why
     min_confidence: float = 0.05           # 2D cues below this are ignored
     min_ray_angle_deg: float = 20.0        # a cue whose views' rays meet closer to parallel (two cameras facing
-                                           # each other) is placed along them by the filter (views.ill_conditioned,
-                                           # views.triangulate_with_prior); 0 = off
+                                           # each other) is placed along them by the filter (ill_conditioned and
+                                           # triangulate_with_prior, mocap_rt.geometry); 0 = off
     fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
     duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
     use_filtered: bool = False             # IK on filtered (True) or measured (False) cues

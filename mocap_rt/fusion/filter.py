@@ -76,6 +76,10 @@ class CueFilter:
         new[:, 1, 1] = c[:, 1, 1] + q * dt
         return self.pos + self.vel * dt, self.vel.copy(), new
 
+    def estimates(self) -> np.ndarray:
+        """(N, 3) the tracks' last estimates (NaN for dead tracks)."""
+        return np.where(self.alive[:, None], self.pos, np.nan)
+
     def predict_at(self, time_s: float) -> np.ndarray:
         """(N, 3) predicted positions at ``time_s`` (NaN for dead tracks); state unchanged."""
         if self.time_s is None:

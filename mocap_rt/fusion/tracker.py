@@ -65,8 +65,8 @@ from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityS
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair,
-                                   head_on_trunk, ill_conditioned, predict_views, reject_duplicates,
-                                   triangulate_cues, triangulate_with_prior)
+                                   head_on_trunk, near_parallel_from_prior, predict_views, reject_duplicates,
+                                   triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
@@ -78,7 +78,7 @@ log = logging.getLogger(__name__)
 # centres that disagree across views by design; it keeps the plain drop-worst rejection)
 _CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
 # weight of the filter's last estimate in a near-parallel cue's triangulation
-# (views.triangulate_with_prior): the rays keep the directions they measure to within this
+# (views.near_parallel_from_prior): the rays keep the directions they measure to within this
 # fraction of the estimate's distance
 PRIOR_WEIGHT = 0.05
 _NO_CUES = np.zeros(N_CUES, dtype=bool)
@@ -145,9 +145,8 @@ class BodyTracker:
     def triangulate(self, uv: np.ndarray, w: np.ndarray, prior: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray]:
         """3D cues (6, 3) and the used views (C, 6) from pixels (C, 6, 2) and weights (C, 6); a cue
-        whose views' rays meet near parallel (``views.ill_conditioned``,
-        ``FusionConfig.min_ray_angle_deg``) takes its place along them from ``prior`` (6, 3) (the
-        filter's last estimate; ``views.triangulate_with_prior``), or is not measured without one."""
+        whose views' rays meet near parallel takes its place along them from ``prior`` (6, 3), the
+        filter's last estimate (``views.near_parallel_from_prior``, ``FusionConfig.min_ray_angle_deg``)."""
         thr = np.full(N_CUES, self.config.max_reproj_px)
         thr[C_TORSO] = self.config.torso_max_reproj_px
         X, used, _ = triangulate_cues(self._tri, self._proj, uv, w, thr,
@@ -165,15 +164,8 @@ class BodyTracker:
                 X = np.where(both[:, None], Xp, X)
                 used = np.where(both[None, :], wp > 0, used)
         if self.config.min_ray_angle_deg > 0:
-            bad = ill_conditioned(self._proj.centers, X, used, self.config.min_ray_angle_deg)
-            if bad.any():
-                X, used = X.copy(), used.copy()
-                for k in np.flatnonzero(bad):
-                    if prior is not None and np.isfinite(prior[k]).all():
-                        X[k] = triangulate_with_prior(self.cameras, uv[:, k], np.where(used[:, k], w[:, k], 0.0),
-                                                      prior[k], PRIOR_WEIGHT)
-                    else:
-                        X[k], used[:, k] = np.nan, False
+            X, used = near_parallel_from_prior(self.cameras, self._proj.centers, uv, w, X, used, prior,
+                                               self.config.min_ray_angle_deg, PRIOR_WEIGHT)
         return X, used
 
     # ------------------------------------------------------------------ body
@@ -266,7 +258,7 @@ class BodyTracker:
             uv0, (uv, w, n_fixed) = uv, fix_left_right(self._tri, self._proj, uv, w, ref)
             self.relabelled += n_fixed
             feet = follow_relabelling(feet, uv0, uv) if (feet is not None and n_fixed) else feet
-        X, used = self.triangulate(uv, w, np.where(self.filter.alive[:, None], self.filter.pos, np.nan))
+        X, used = self.triangulate(uv, w, self.filter.estimates())
         valid = np.isfinite(X).all(axis=1)
         X = reject_duplicates(X, valid, used, pred, self.config.duplicate_m)
         valid = np.isfinite(X).all(axis=1)
@@ -278,7 +270,7 @@ class BodyTracker:
         timings["identify"] = (t1 - t_id) * 1e3
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
         valid &= accepted
-        filt = np.where(self.filter.alive[:, None], self.filter.pos, np.nan)
+        filt = self.filter.estimates()
         measured = np.where(valid[:, None], filt if self.config.use_filtered else X, np.nan)
         cues_ik = np.where(valid[:, None], measured, filt)
         t2 = time.perf_counter()

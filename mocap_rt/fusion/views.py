@@ -10,9 +10,9 @@
   ``max_reproj_px``, the cue restarts from the largest consensus set of views (every
   pair triangulates, the views within the threshold of its point are its inliers), then
   the worst view is dropped while its error is above the threshold and >= 3 views remain.
-* ``ill_conditioned`` — a cue whose views' rays are near parallel (two cameras facing each
-  other across the subject) has no bound on its error along them; ``triangulate_with_prior``
-  places it there from a prior point (the tracker's: the filter's last estimate).
+* ``near_parallel_from_prior`` — a cue whose views' rays are near parallel (two cameras facing
+  each other across the subject) has no bound on its error along them: a prior point (the
+  tracker's: the filter's last estimate) places it there.
 * ``fix_left_right`` — a single view cannot be sure which hand (foot) is the left one:
   per view, keep the labelling that agrees with the 3D prediction, or at a cold start
   the combination of per-view labellings that triangulates best.
@@ -28,12 +28,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from numba import njit
 
 from mocap_rt.cues import CameraCues
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.geometry.lens import dist8, distort
-from mocap_rt.geometry.ray_triangulator import RayTriangulator
+from mocap_rt.geometry.ray_triangulator import RayTriangulator, ill_conditioned
+from mocap_rt.geometry.triangulate import triangulate_with_prior
 from mocap_rt.names import C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, LIMB_CUES, LR_PAIRS, N_CUES
 
 # Physical cue radii (metres) for the predicted blob size and the Z-buffer discs,
@@ -193,63 +193,27 @@ def triangulate_cues(tri: RayTriangulator, proj: RigProjector, uv: np.ndarray, w
     return X, used, _residuals(proj, X, uv, used)
 
 
-@njit(cache=True, nogil=True)
-def _least_ray_sine2(centers, X, used, out):
-    """out (N,): the largest squared sine between two used views' rays at X (N, 3) (-1: fewer
-    than two views or X not finite). centers (C, 3), used (C, N) bool."""
-    C, N = used.shape
-    d = np.empty((C, 3))
-    for n in range(N):
-        out[n] = -1.0
-        if not (np.isfinite(X[n, 0]) and np.isfinite(X[n, 1]) and np.isfinite(X[n, 2])):
-            continue
-        for c in range(C):
-            if used[c, n]:
-                v0, v1, v2 = X[n, 0] - centers[c, 0], X[n, 1] - centers[c, 1], X[n, 2] - centers[c, 2]
-                inv = 1.0 / np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-                d[c, 0], d[c, 1], d[c, 2] = v0 * inv, v1 * inv, v2 * inv
-        for a in range(C):
-            if not used[a, n]:
-                continue
-            for b in range(a + 1, C):
-                if used[b, n]:
-                    c0 = d[a, 1] * d[b, 2] - d[a, 2] * d[b, 1]
-                    c1 = d[a, 2] * d[b, 0] - d[a, 0] * d[b, 2]
-                    c2 = d[a, 0] * d[b, 1] - d[a, 1] * d[b, 0]
-                    out[n] = max(out[n], c0 * c0 + c1 * c1 + c2 * c2)
-
-
-def ill_conditioned(centers: np.ndarray, X: np.ndarray, used: np.ndarray, min_angle_deg: float) -> np.ndarray:
-    """(N,) bool: cues whose used views' rays all meet at ``X`` (N, 3) within ``min_angle_deg`` of
-    parallel (or of antiparallel: two cameras facing each other across the subject). Along
-    such rays the intersection is undetermined: its error is the rays' lateral error over the
-    sine of their angle (two opposite ring cameras 5-10 deg off a line, 6 px off at 3.5 m:
-    0.2-0.4 m). centers (C, 3) metres; used (C, N) bool. A cue without two views is not."""
-    sin2 = np.empty(X.shape[0])
-    _least_ray_sine2(np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(X, np.float64),
-                     np.ascontiguousarray(used, np.bool_), sin2)
-    return (sin2 >= 0.0) & (sin2 < np.sin(np.radians(min_angle_deg)) ** 2)
-
-
-def triangulate_with_prior(cameras: Sequence[Camera], uv: np.ndarray, w: np.ndarray, prior: np.ndarray,
-                           prior_weight: float) -> np.ndarray:
-    """One cue's point (3,) from its views' rays and a prior point: the least squares of
-    ``sum_c w_c |(I - d d^T)(X - o_c)|^2 + lam |X - prior|^2`` with ``lam = prior_weight * sum w``.
-    Where the rays meet near parallel (``ill_conditioned``) the prior decides the point along
-    them and the rays the rest (a small ``prior_weight`` moves the well-measured directions by
-    about that fraction of the prior's distance). uv (C, 2) pixels (NaN: not seen), w (C,)."""
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    total = 0.0
-    for cam, p, wc in zip(cameras, uv, w):
-        if wc > 0 and np.isfinite(p).all():
-            o, d = cam.rays(p[None, :])
-            P = np.eye(3) - np.outer(d[0], d[0])
-            A += wc * P
-            b += wc * P @ o[0]
-            total += wc
-    lam = prior_weight * total
-    return np.linalg.solve(A + lam * np.eye(3), b + lam * np.asarray(prior, np.float64))
+def near_parallel_from_prior(cameras: Sequence[Camera], centers: np.ndarray, uv: np.ndarray, w: np.ndarray,
+                             X: np.ndarray, used: np.ndarray, prior: np.ndarray | None, min_angle_deg: float,
+                             prior_weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """``triangulate_cues``' result (X (N, 3), used (C, N)) with each cue whose used views' rays
+    meet within ``min_angle_deg`` of parallel (two cameras facing each other across the subject,
+    ``ray_triangulator.ill_conditioned``) placed by its rays and ``prior`` (N, 3) at
+    ``prior_weight`` (``triangulate.triangulate_with_prior``): along the rays, where they measure
+    next to nothing, the prior decides. Such a cue without a prior is not measured. The inputs
+    are returned as they are when no cue is near parallel. cameras / centers (C, 3), uv (C, N, 2),
+    w (C, N) as ``triangulate_cues`` took them."""
+    bad = ill_conditioned(centers, X, used, min_angle_deg)
+    if not bad.any():
+        return X, used
+    placed = bad & (np.isfinite(prior).all(axis=1) if prior is not None else False)
+    X, used = X.copy(), used.copy()
+    if placed.any():
+        X[placed] = triangulate_with_prior(cameras, uv[:, placed], np.where(used[:, placed], w[:, placed], 0.0),
+                                           prior[placed], prior_weight)
+    X[bad & ~placed] = np.nan
+    used[:, bad & ~placed] = False
+    return X, used
 
 
 # a triangulated head farther than this fraction off the body's head - torso distance is not on

@@ -3,7 +3,10 @@
 Owns the weighted least-squares ray intersection run on distorted pixels in one numba
 kernel (undistortion by ``mocap_rt.geometry.lens``, back-projection, 3x3 solve);
 ``RayTriangulator`` precomputes what depends on the rig only, for the real-time path (six
-cues x six cameras, every frame). ``mocap_rt.geometry.triangulate.triangulate_points`` is the
+cues x six cameras, every frame). ``ill_conditioned`` finds the points whose views' rays meet
+near parallel (two cameras facing each other), where that least squares has no bound along
+them (``triangulate.triangulate_with_prior`` places them from a prior point).
+``mocap_rt.geometry.triangulate.triangulate_points`` is the
 one-call entry on the same kernel. The result equals the NumPy reference
 (:func:`~mocap_rt.geometry.triangulate.triangulate_rays` on ``Camera.rays``) to ~1e-12 m.
 World frame: right-handed, +Z up, metres.
@@ -23,7 +26,7 @@ from mocap_rt.geometry.lens import dist8, undistort_point
 # as parallel (about 1e-7 rad between two rays).
 SINGULAR_DET_RATIO = 1e-14
 
-__all__ = ["RayTriangulator"]
+__all__ = ["RayTriangulator", "ill_conditioned"]
 
 
 @njit(cache=True, nogil=True)
@@ -136,3 +139,41 @@ class RayTriangulator:
         if _triangulate_kernel(uv, w, self._kinv, self._dist, self._rt, self._centers, out):
             raise ValueError("weights must be finite and >= 0")
         return out
+
+
+@njit(cache=True, nogil=True)
+def _least_ray_sine2(centers, X, used, out):
+    """out (N,): the largest squared sine between two used views' rays at X (N, 3) (-1: fewer
+    than two views or X not finite). centers (C, 3), used (C, N) bool."""
+    C, N = used.shape
+    d = np.empty((C, 3))
+    for n in range(N):
+        out[n] = -1.0
+        if not (np.isfinite(X[n, 0]) and np.isfinite(X[n, 1]) and np.isfinite(X[n, 2])):
+            continue
+        for c in range(C):
+            if used[c, n]:
+                v0, v1, v2 = X[n, 0] - centers[c, 0], X[n, 1] - centers[c, 1], X[n, 2] - centers[c, 2]
+                inv = 1.0 / np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+                d[c, 0], d[c, 1], d[c, 2] = v0 * inv, v1 * inv, v2 * inv
+        for a in range(C):
+            if not used[a, n]:
+                continue
+            for b in range(a + 1, C):
+                if used[b, n]:
+                    c0 = d[a, 1] * d[b, 2] - d[a, 2] * d[b, 1]
+                    c1 = d[a, 2] * d[b, 0] - d[a, 0] * d[b, 2]
+                    c2 = d[a, 0] * d[b, 1] - d[a, 1] * d[b, 0]
+                    out[n] = max(out[n], c0 * c0 + c1 * c1 + c2 * c2)
+
+
+def ill_conditioned(centers: np.ndarray, X: np.ndarray, used: np.ndarray, min_angle_deg: float) -> np.ndarray:
+    """(N,) bool: cues whose used views' rays all meet at ``X`` (N, 3) within ``min_angle_deg`` of
+    parallel (or of antiparallel: two cameras facing each other across the subject). Along
+    such rays the intersection is undetermined: its error is the rays' lateral error over the
+    sine of their angle (two opposite ring cameras 5-10 deg off a line, 6 px off at 3.5 m:
+    0.2-0.4 m). centers (C, 3) metres; used (C, N) bool. A cue without two views is not."""
+    sin2 = np.empty(X.shape[0])
+    _least_ray_sine2(np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(X, np.float64),
+                     np.ascontiguousarray(used, np.bool_), sin2)
+    return (sin2 >= 0.0) & (sin2 < np.sin(np.radians(min_angle_deg)) ** 2)

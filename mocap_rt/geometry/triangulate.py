@@ -41,6 +41,7 @@ __all__ = [
     "triangulate_rays",
     "triangulate_dlt",
     "triangulate_points",
+    "triangulate_with_prior",
     "refine_points",
     "reprojection_residuals",
     "line_direction_two_views",
@@ -129,14 +130,19 @@ def _solve_normal(A: np.ndarray, b: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
-def triangulate_rays(origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+def triangulate_rays(origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray | None = None,
+                     prior: np.ndarray | None = None, prior_weight: float = 0.0) -> np.ndarray:
     """Weighted least-squares point closest to C rays, for N points at once.
 
     origins : (C, N, 3) float64 ray origins, metres, world frame.
     dirs : (C, N, 3) float64 ray directions (normalised here).
     weights : (C, N) float64 >= 0 or None (all 1); 0/NaN = view missing.
-    Returns (N, 3) float64 metres minimising ``sum_c w_c |(I - d d^T)(X - o_c)|^2``;
-    NaN where fewer than two valid views or the rays are (nearly) parallel.
+    prior, prior_weight : (N, 3) points (NaN rows: none) each point is also drawn to, with
+        ``lam = prior_weight * sum_c w_c`` (its views' summed weight): where the rays meet near
+        parallel the prior decides the point along them and the rays the rest; where they are
+        well conditioned it moves the point by about ``prior_weight`` of its distance.
+    Returns (N, 3) float64 metres minimising ``sum_c w_c |(I - d d^T)(X - o_c)|^2`` (``+ lam
+    |X - prior|^2``); NaN where fewer than two valid views or the rays are (nearly) parallel.
     """
     o = _views(origins, "origins", 3)
     d = _views(dirs, "dirs", 3)
@@ -154,6 +160,11 @@ def triangulate_rays(origins: np.ndarray, dirs: np.ndarray, weights: np.ndarray 
     A = np.einsum("cn,cnij->nij", w, np.eye(3) - ddT)                # (N, 3, 3)
     proj = o - d * np.einsum("cni,cni->cn", d, o)[..., None]         # (C, N, 3)
     b = np.einsum("cn,cni->ni", w, proj)                             # (N, 3)
+    if prior is not None and prior_weight > 0:
+        prior = np.asarray(prior, np.float64).reshape(N, 3)
+        lam = np.where(np.isfinite(prior).all(-1), prior_weight * w.sum(axis=0), 0.0)   # (N,)
+        A = A + lam[:, None, None] * np.eye(3)
+        b = b + lam[:, None] * np.nan_to_num(prior)
     return _solve_normal(A, b, valid.sum(axis=0) >= 2)
 
 
@@ -226,6 +237,18 @@ def triangulate_points(cameras: Sequence[Camera], uv: np.ndarray, weights: np.nd
     if refine:
         X = refine_points(cameras, uv, X, weights)
     return X
+
+
+def triangulate_with_prior(cameras: Sequence[Camera], uv: np.ndarray, weights: np.ndarray, prior: np.ndarray,
+                           prior_weight: float) -> np.ndarray:
+    """``triangulate_rays`` with a prior (module doc; its ``prior``, ``prior_weight``) for points
+    seen by calibrated cameras: uv (C, N, 2) distorted pixels (NaN: not seen), weights (C, N),
+    prior (N, 3). Returns (N, 3) metres. NumPy: for the few points a prior is wanted for (the
+    tracker's near-parallel cues, ``ray_triangulator.ill_conditioned``)."""
+    uv = _check_cameras(cameras, uv)
+    rays = [cam.rays(p) for cam, p in zip(cameras, uv)]
+    return triangulate_rays(np.stack([o for o, _ in rays]), np.stack([d for _, d in rays]),
+                            _weights(weights, uv.shape[:2]), prior, prior_weight)
 
 
 def _project_clamped(cam: Camera, X: np.ndarray) -> np.ndarray:

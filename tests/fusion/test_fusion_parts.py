@@ -6,10 +6,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.views import (RigProjector, frontal_pair, head_on_trunk, ill_conditioned, predict_views,
-                                   triangulate_cues, triangulate_with_prior)
-from mocap_rt.geometry.ray_triangulator import RayTriangulator
+from mocap_rt.fusion.views import RigProjector, frontal_pair, head_on_trunk, predict_views, triangulate_cues
+from mocap_rt.geometry.ray_triangulator import RayTriangulator, ill_conditioned
 from mocap_rt.geometry.rig import ring_rig
+from mocap_rt.geometry.triangulate import triangulate_with_prior
 
 
 def test_kalman_tracks_constant_velocity_and_predicts():
@@ -124,12 +124,12 @@ def test_two_cameras_facing_each_other_do_not_measure_depth_between_them():
     one[1, 0] = True
     assert not ill_conditioned(proj.centers, Xh, one, 20.0).any()
     prior = X[0] + [0.03, -0.02, 0.02]
-    Xp = triangulate_with_prior(rig.cameras, noisy[:, 0], w[:, 0], prior, 0.05)
+    Xp = triangulate_with_prior(rig.cameras, noisy[:, :1], w[:, :1], prior[None], 0.05)[0]
     assert np.linalg.norm(Xp - X[0]) < 1.2 * np.linalg.norm(prior - X[0]) < np.linalg.norm(Xh[0] - X[0]) / 3
     # exact rays and the prior on them: the point itself
-    np.testing.assert_allclose(triangulate_with_prior(rig.cameras, uv[:, 0], w[:, 0], X[0], 0.05), X[0], atol=1e-9)
+    np.testing.assert_allclose(triangulate_with_prior(rig.cameras, uv[:, :1], w[:, :1], X[:1], 0.05)[0], X[0], atol=1e-9)
     # well-conditioned views: the prior moves the point by about prior_weight of its distance
-    Xw = triangulate_with_prior(rig.cameras, uv[:, 1], w[:, 1], X[1] + [0.1, 0.0, 0.0], 0.05)
+    Xw = triangulate_with_prior(rig.cameras, uv[:, 1:], w[:, 1:], X[1:] + [0.1, 0.0, 0.0], 0.05)[0]
     assert 0.0 < np.linalg.norm(Xw - X[1]) < 0.1 * 0.05 * 2
 
 
