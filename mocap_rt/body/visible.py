@@ -192,19 +192,17 @@ _OFFSET_ROWS = np.array([n in OFFSET_CUES for n in CUE_NAMES])
 _SHAPE_ROWS = np.array([n in SHAPE_CUES for n in CUE_NAMES])
 
 
-def part_offsets(parts: np.ndarray) -> np.ndarray:
-    """(..., 6, 2) the visible centres' offsets of ``visible_parts`` for ``OFFSET_CUES``,
-    NaN for the other cues and where another part hides more than ``OTHER_HIDDEN_FRAC``."""
-    keep = _OFFSET_ROWS & (parts[..., 5] <= OTHER_HIDDEN_FRAC)          # NaN: False
+def part_offsets(parts: np.ndarray, rows: np.ndarray = _OFFSET_ROWS) -> np.ndarray:
+    """(..., 6, 2) the visible centres' offsets of ``visible_parts`` for the cues of ``rows``
+    (6,) bool (``OFFSET_CUES``), NaN for the other cues and where another part hides more than
+    ``OTHER_HIDDEN_FRAC``."""
+    keep = rows & (parts[..., 5] <= OTHER_HIDDEN_FRAC)          # NaN: False
     return np.where(keep[..., None], parts[..., :2], np.nan)
 
 
 def shoe_offsets(parts: np.ndarray) -> np.ndarray:
-    """(..., 6, 2) the visible centres' offsets of ``visible_parts`` for the shoes
-    (``SHAPE_CUES``), NaN for the other cues and where another part hides more than
-    ``OTHER_HIDDEN_FRAC``."""
-    keep = _SHAPE_ROWS & (parts[..., 5] <= OTHER_HIDDEN_FRAC)
-    return np.where(keep[..., None], parts[..., :2], np.nan)
+    """``part_offsets`` for the shoes (``SHAPE_CUES``)."""
+    return part_offsets(parts, _SHAPE_ROWS)
 
 
 def part_shapes(parts: np.ndarray) -> np.ndarray:
