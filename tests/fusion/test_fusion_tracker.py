@@ -84,14 +84,15 @@ def test_predict_gives_every_camera_the_projected_cues(walk):
     assert np.linalg.norm(tracker.filter.vel[[3, 4]], axis=1).max() > tracker.config.shoe_shapes_max_speed_mps
     anyspeed = BodyTracker(rig, replace(tracker.config, shoe_shapes_max_speed_mps=np.inf))
     run(anyspeed, rig, walk[:20], noise_px=0.0)
-    for p in anyspeed.predict(20).values():
+    preds = anyspeed.predict(20)
+    for p in preds.values():
         shoes = p.shape_px[3:5][np.isfinite(p.shape_px[3:5, 0, 0])]
         assert np.isnan(p.shape_px[[0, 1, 2, 5]]).all() and len(shoes) >= 1
         assert (np.linalg.eigvalsh(shoes) > 0).all() and np.sqrt(np.linalg.eigvalsh(shoes).max()) < 20.0
         # ... with the shoes' visible centres (cast on the published feet) where a shoe has a
         # shape (none where another part hides it), within the shoe
         assert (np.isfinite(p.offset_px[3:5, 0]) <= np.isfinite(p.shape_px[3:5, 0, 0])).all()
-    shoe_off = np.array([p.offset_px[3:5] for p in anyspeed.predict(20).values()])
+    shoe_off = np.array([p.offset_px[3:5] for p in preds.values()])
     assert np.isfinite(shoe_off[..., 0]).sum() >= 3 and np.nanmax(np.abs(shoe_off)) < 10.0
     no_shoes = BodyTracker(rig, replace(anyspeed.config, shoe_offsets=False))
     run(no_shoes, rig, walk[:20], noise_px=0.0)
