@@ -54,7 +54,10 @@ the fit: the two labellings put the legs within the model's own error of each ot
 separates their costs is that error (a standing Bandai subject's exchanged feet fit the
 silhouettes 1-2.5 cm^2 a frame better, docs/body.md). There the feet alternative is scored as
 the current labelling, so that no evidence is summed from it; the crossed legs' credit still
-counts.
+counts. Until a frame has told the feet apart (hips known, feet not together) or a switch has
+exchanged them, nothing has decided the feet's labels (``IdentityState.feet_decided``): they
+are the cold start's, and a feet switch then reaches back over the whole track, as one
+while acquiring does.
 """
 
 from __future__ import annotations
@@ -110,7 +113,9 @@ class IdentityState:
     won (3,): for how many frames in a row (this one included) each alternative has been
     cheaper than the current labelling, within this track; ``last_switch``: the alternative
     the last switch took and how many frames back it reaches (that count; while acquiring, all
-    the track's frames: its labels were the cold start's guess).
+    the track's frames: its labels were the cold start's guess; so too for a feet switch while
+    ``feet_decided`` is False: no frame had told the feet apart and no switch had exchanged
+    them, the caller sets it for the first, ``decide`` for the second).
     """
 
     evidence: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES)))
@@ -119,11 +124,13 @@ class IdentityState:
     last_costs: np.ndarray = field(default_factory=lambda: np.full(1 + len(ALTERNATIVES), np.nan))
     won: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES), np.int64))
     last_switch: tuple[int, int] = (-1, 0)
+    feet_decided: bool = False
 
     def reset(self) -> None:
         self.evidence[:] = 0.0
         self.frames = 0
         self.won[:] = 0
+        self.feet_decided = False
 
 
 def swap_pairs(X: np.ndarray, k: int) -> np.ndarray:
@@ -277,8 +284,11 @@ def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> i
                 return -1
             k = single
     # how far back the switch reaches: a track's labels before it has acquired its identity were
-    # the cold start's guess, else the frames the alternative won in a row
-    state.last_switch = (k, state.frames if acquiring else int(state.won[k]))
+    # the cold start's guess, and so were its feet's until something decided them; else the
+    # frames the alternative won in a row
+    undecided = ALTERNATIVES[k] == "feet" and not state.feet_decided
+    state.last_switch = (k, state.frames if acquiring or undecided else int(state.won[k]))
+    state.feet_decided |= ALTERNATIVES[k] != "hands"
     state.evidence[:] = 0.0
     state.won[:] = 0
     state.switches += 1

@@ -92,10 +92,11 @@ def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: i
                   previous: tuple[int, int] | None) -> tuple[int, int] | None:
     """When the frame just stepped switched the labels (``tracker.identity.switches`` passed
     ``switches``), the frames before it that carried the same labels get the new ones too (in
-    place): while acquiring the track's frames, else those the alternative won in a row
-    (``IdentityState.last_switch``), and for the exchange of one pair further back, the frames
-    tracking alone carried that pair to this one (``_tracked_apart``; not for the mirror, which
-    after the acquisition is mostly wrong, docs/body.md). A mirror that follows a mirror
+    place): while acquiring, or for feet that nothing had decided, the track's frames, else
+    those the alternative won in a row (``IdentityState.last_switch``), and for the exchange of
+    one pair further back, the frames tracking alone carried that pair to this one
+    (``_tracked_apart``; not for the mirror, which after the acquisition is mostly wrong,
+    docs/body.md). A mirror that follows a mirror
     (``previous``: the last switch's alternative and first frame carried back) undoes it: it
     reaches back as far as that one did. Never before the track, at most
     ``RELABEL_BACK_FRAMES``. The live service cannot: it has published them. Returns this

@@ -397,6 +397,9 @@ class BodyTracker:
         # legs that pass through each other: a credit to the feet alternative (identity module doc)
         costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(hips, cues)
         k = decide(self.identity, costs, cfg)
+        # a frame whose fit could tell the feet apart has decided their labels (identity module doc)
+        self.identity.feet_decided |= (hips is not None and bool(np.isfinite(hips).all())
+                                       and bool(np.isfinite(cues[[C_FOOT_L, C_FOOT_R]]).all()) and not together)
         if k < 0:
             return k
         self._hips = None                # fitted on the labels just found wrong

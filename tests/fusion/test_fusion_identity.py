@@ -79,6 +79,38 @@ def test_decide_switches_on_consistent_evidence_and_never_on_noise():
     assert ALTERNATIVES.index("hands") in hits
 
 
+def test_a_feet_switch_reaches_over_the_whole_track_until_something_decided_the_feet():
+    """Past the acquisition a switch reaches back over the frames it won; but feet that no frame
+    told apart (standing closer together than the hips) and no switch exchanged still have the
+    cold start's labels, so their first switch reaches back over the whole track."""
+    cfg = IdentityConfig()
+    feet, hands, mirror = (ALTERNATIVES.index(a) for a in ("feet", "hands", "mirror"))
+
+    def run(decided: bool, k: int, quiet: int = 40) -> IdentityState:
+        state = IdentityState(feet_decided=decided)
+        for _ in range(quiet):                            # past the acquisition, nothing cheaper
+            assert decide(state, np.array([10.0, 12.0, 12.0, 14.0]), cfg) == -1
+        costs = np.full(4, 14.0)
+        costs[0], costs[1 + k] = 10.0, 0.0                # then alternative k 10 units cheaper a frame
+        while decide(state, costs, cfg) < 0:
+            pass
+        assert state.frames > cfg.acquire_frames and state.last_switch[0] == k
+        return state
+
+    undecided, decided = run(False, feet), run(True, feet)
+    won = int(decided.last_switch[1])
+    assert 1 <= won < 10                                   # the frames it won in a row
+    assert undecided.last_switch[1] == undecided.frames    # every frame of the track
+    assert undecided.feet_decided                          # the switch decided them
+    # the hands' switch is not the feet's: it reaches as far as it won and decides nothing of the feet
+    hands_only = run(False, hands)
+    assert hands_only.last_switch[1] == won and not hands_only.feet_decided
+    assert run(False, mirror).feet_decided
+    state = IdentityState(feet_decided=True)
+    state.reset()                                          # a new track: its feet undecided again
+    assert not state.feet_decided
+
+
 def test_the_mirror_needs_evidence_for_both_pairs():
     """First frames measured in the closed loop (costs: current, hands, feet, mirror). Wholly
     mirrored (backwards walk): the feet swap alone is also cheaper than the current labels, so
@@ -359,6 +391,25 @@ def test_skipped_alternatives_are_not_fitted_and_the_rest_are_unchanged():
     assert np.isnan(part[[1 + feet, 1 + mirror]]).all() and np.isfinite(full).all()
     keep = [0, 1 + ALTERNATIVES.index("hands")]
     np.testing.assert_array_equal(part[keep], full[keep])
+
+
+def test_the_tracker_decides_the_feet_on_the_first_frame_that_tells_them_apart(backwards_walk):
+    """A walk with the right labels from the first frame: no feet switch, but the feet are
+    decided once a frame has the last pose's hips and the feet wider apart than them (the first
+    frame has no pose yet)."""
+    rec, truth, names, widths, tracker, rng = _truth_setup(backwards_walk)
+    decided, apart = [], []
+    for f in range(25):
+        tracker.step(f, _truth_cues(truth, names, widths, f, rng, ()))
+        decided.append(tracker.identity.feet_decided)
+        t = truth["joints"][f]
+        apart.append(np.linalg.norm(truth["cues"][f][FL] - truth["cues"][f][FR])
+                     > np.linalg.norm(t[J["hip_l"]] - t[J["hip_r"]]))
+    rec.close()
+    assert tracker.identity.switches == 0 or ALTERNATIVES[tracker.identity.last_switch[0]] == "hands"
+    assert not decided[0] and decided[-1]
+    first = decided.index(True)
+    assert any(apart[max(0, first - 1):first + 1])        # decided where the truth's feet were apart
 
 
 def test_feet_together_is_closer_than_the_hips():
