@@ -113,9 +113,9 @@ class IdentityState:
     won (3,): for how many frames in a row (this one included) each alternative has been
     cheaper than the current labelling, within this track; ``last_switch``: the alternative
     the last switch took and how many frames back it reaches (that count; while acquiring, all
-    the track's frames: its labels were the cold start's guess; so too for a feet switch while
-    ``feet_decided`` is False: no frame had told the feet apart and no switch had exchanged
-    them, the caller sets it for the first, ``decide`` for the second).
+    the track's frames: its labels were the cold start's guess; so too for a feet switch until
+    ``feet_decided``). ``feet_decided``: a frame has told the feet apart (set by the caller,
+    ``BodyTracker``) or a switch has exchanged them (``decide``).
     """
 
     evidence: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES)))
