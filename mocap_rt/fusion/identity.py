@@ -244,6 +244,13 @@ def feet_together(hips: np.ndarray | None, cues: np.ndarray, factor: float) -> b
     return bool(np.linalg.norm(cues[fl] - cues[fr]) < factor * np.linalg.norm(hips[0] - hips[1]))
 
 
+def feet_told_apart(hips: np.ndarray | None, cues: np.ndarray, factor: float) -> bool:
+    """The fit can tell the feet apart: the ``hips`` and both feet cues known, and the feet not
+    ``feet_together`` (what decides their labels, ``IdentityState.feet_decided``)."""
+    return (hips is not None and bool(np.isfinite(hips).all()) and bool(np.isfinite(cues[list(FEET)]).all())
+            and not feet_together(hips, cues, factor))
+
+
 def crossed_legs_cm2(hips: np.ndarray | None, cues: np.ndarray, clearance_m: float = LEG_CLEARANCE_M) -> float:
     """How deep (cm^2) the legs, drawn as lines from the ``hips`` (2, 3) (left, right, metres,
     world; a recent pose's) to the feet ``cues`` (6, 3), pass through each other: ``(clearance

@@ -61,7 +61,7 @@ from mocap_rt.fusion.calibration import LengthCalibration, Lengths
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.filter import CueFilter
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityState, crossed_legs_cm2, decide,
-                                      feet_together, score_hypotheses, swap_pairs)
+                                      feet_together, feet_told_apart, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair,
@@ -397,9 +397,7 @@ class BodyTracker:
         # legs that pass through each other: a credit to the feet alternative (identity module doc)
         costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(hips, cues)
         k = decide(self.identity, costs, cfg)
-        # a frame whose fit could tell the feet apart has decided their labels (identity module doc)
-        self.identity.feet_decided |= (hips is not None and bool(np.isfinite(hips).all())
-                                       and bool(np.isfinite(cues[[C_FOOT_L, C_FOOT_R]]).all()) and not together)
+        self.identity.feet_decided |= feet_told_apart(hips, cues, cfg.feet_together_hips)   # identity module doc
         if k < 0:
             return k
         self._hips = None                # fitted on the labels just found wrong

@@ -7,8 +7,8 @@ from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.evaluate import heading_deg, mirrored_frames, truth_camera_cues, wrap_deg
 from mocap_rt.fusion.filter import CueFilter
 from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityConfig, IdentityState,
-                                      crossed_legs_cm2, decide, feet_together, segment_distance, swap_pairs,
-                                      swap_swivel)
+                                      crossed_legs_cm2, decide, feet_together, feet_told_apart, segment_distance,
+                                      swap_pairs, swap_swivel)
 from mocap_rt.fusion.tracker import BodyTracker
 from mocap_rt.io.recording import Recording
 from mocap_rt.names import CUE_NAMES, J
@@ -426,6 +426,10 @@ def test_feet_together_is_closer_than_the_hips():
     missing[FR] = np.nan
     assert not feet_together(None, cues, 1.0) and not feet_together(hips, missing, 1.0)
     assert not feet_together(hips, cues, 0.0)
+    # told apart: hips and both feet known, and not together
+    assert feet_told_apart(hips, wide, 1.0) and feet_told_apart(hips, cues, 0.8)
+    assert not feet_told_apart(hips, cues, 1.0)
+    assert not feet_told_apart(None, wide, 1.0) and not feet_told_apart(hips, missing, 1.0)
 
 
 @pytest.mark.slow
