@@ -135,8 +135,10 @@ NO_VIEWS = (np.zeros((1, 3, 4)), np.ones(1), np.zeros((1, 8), np.int64), np.zero
 
 
 @njit(cache=True, nogil=True)
-def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R, views, w_elbow):
+def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R, views, w_elbow, limb=-1):
     """Fill the joint frames R (J, 3, 3); return the pelvis position (see analytic_pose).
+    With a ``limb`` (0-3, the swivel slot: arm_l, arm_r, leg_l, leg_r) only the trunk's and that
+    limb's frames are written: the others keep R's (a search that moves one limb's swivel).
 
     poles : (6,) elbow_raise, elbow_down, knee_open (radians), elbow pole candidates (a
     count, 0 = the fixed pole), twist cost and turn cost (``limb_args``); arm_lim : (2, 3, 2) radians,
@@ -172,35 +174,39 @@ def _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swive
         hand_c = C_HAND_L if s == 0 else C_HAND_R
         foot_c = C_FOOT_L if s == 0 else C_FOOT_R
         jsh, jel, jwr, jha, jhi, jkn, jan, jft = limb_joints[s]
-        # arm: shoulder -> elbow -> hand (hand collinear with the forearm at zero wrist angles)
-        shoulder = neck + right * (sx * sh_half)
-        back_down = -forward * np.cos(elbow_down) - up * np.sin(elbow_down)
-        pole = _rot_about(up, -sx * elbow_raise, back_down)
-        d = cues[hand_c] - shoulder
-        if swivel[s] != 0.0 and d @ d > 1e-12:
-            pole = _rot_about(d, swivel[s], pole)
-        if n_poles > 1 and d @ d > 1e-12:
-            pole = _arm_pole(shoulder, cues[hand_c], upper_len, fore_len, pole, axes, arm_lim[s], n_poles, poles[4],
-                             views, w_elbow, poles[5])
-        elbow, hand, u, w = _two_link(shoulder, cues[hand_c], upper_len, fore_len, pole)
-        x = _cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
-        _frame(elbow - shoulder, x, R[jsh])
-        _frame(hand - elbow, x, R[jel])
-        R[jwr] = R[jel]
-        R[jha] = R[jel]
-        # leg: hip -> knee -> foot centre; the foot is rigid on the shank (paper model)
-        hip = pelvis + right * (sx * hip_half)
-        pole = _rot_about(up, sx * knee_open, forward)
-        d = cues[foot_c] - hip
-        if swivel[2 + s] != 0.0 and d @ d > 1e-12:
-            pole = _rot_about(d, swivel[2 + s], pole)
-        knee, foot, u, w = _two_link(hip, cues[foot_c], thigh, L2_leg, pole)
-        n = _cross(u, w)  # flexion axis (the body's right for a straight standing leg)
-        u2 = _nunit(foot - knee, -up)
-        _frame(knee - hip, n, R[jhi])
-        _frame(_rot_about(n, -gamma, u2), n, R[jkn])
-        _frame(_rot_about(n, beta - gamma, u2), n, R[jan])
-        R[jft] = R[jan]
+        if limb >= 0 and limb % 2 != s:
+            continue
+        if limb < 2:
+            # arm: shoulder -> elbow -> hand (hand collinear with the forearm at zero wrist angles)
+            shoulder = neck + right * (sx * sh_half)
+            back_down = -forward * np.cos(elbow_down) - up * np.sin(elbow_down)
+            pole = _rot_about(up, -sx * elbow_raise, back_down)
+            d = cues[hand_c] - shoulder
+            if swivel[s] != 0.0 and d @ d > 1e-12:
+                pole = _rot_about(d, swivel[s], pole)
+            if n_poles > 1 and d @ d > 1e-12:
+                pole = _arm_pole(shoulder, cues[hand_c], upper_len, fore_len, pole, axes, arm_lim[s], n_poles, poles[4],
+                                 views, w_elbow, poles[5])
+            elbow, hand, u, w = _two_link(shoulder, cues[hand_c], upper_len, fore_len, pole)
+            x = _cross(w, u)  # flexion axis: the elbow bends the forearm towards -w
+            _frame(elbow - shoulder, x, R[jsh])
+            _frame(hand - elbow, x, R[jel])
+            R[jwr] = R[jel]
+            R[jha] = R[jel]
+        if limb < 0 or limb >= 2:
+            # leg: hip -> knee -> foot centre; the foot is rigid on the shank (paper model)
+            hip = pelvis + right * (sx * hip_half)
+            pole = _rot_about(up, sx * knee_open, forward)
+            d = cues[foot_c] - hip
+            if swivel[2 + s] != 0.0 and d @ d > 1e-12:
+                pole = _rot_about(d, swivel[2 + s], pole)
+            knee, foot, u, w = _two_link(hip, cues[foot_c], thigh, L2_leg, pole)
+            n = _cross(u, w)  # flexion axis (the body's right for a straight standing leg)
+            u2 = _nunit(foot - knee, -up)
+            _frame(knee - hip, n, R[jhi])
+            _frame(_rot_about(n, -gamma, u2), n, R[jkn])
+            _frame(_rot_about(n, beta - gamma, u2), n, R[jan])
+            R[jft] = R[jan]
     return pelvis
 
 

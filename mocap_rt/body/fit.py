@@ -42,11 +42,14 @@ from mocap_rt.body.analytic import _LIMB_JOINTS, NO_VIEWS, AnalyticConfig, _anal
 from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, N_FOOT_COLS, foot_axis_cost
 from mocap_rt.body.kinematics import fk_kernel
 from mocap_rt.body.limb_geometry import _cross, _frame, _rot_about, joint_violation
-from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SilhouetteTargets, body_capsules, capsules_cost, \
-    pose_points
+from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SWIVEL_CAPSULES, SWIVEL_OTHER_CAPSULES, \
+    SilhouetteTargets, add_capsules, body_capsules, capsules_cost, new_partial, partial_cost, pose_points, reset_partial
 from mocap_rt.body.skeleton import BodyModel
 from mocap_rt.names import C_HEAD, C_TORSO
 from mocap_rt.studio.body_map import POINT_NAMES
+
+
+_NO_PARTIAL = np.zeros((1, 2))      # _evaluate without a partial silhouette sum
 
 
 @dataclass(frozen=True)
@@ -88,26 +91,47 @@ class FitConfig:
 @njit(cache=True, nogil=True)
 def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
               lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w_sil, w_foot, R, ang, pos,
-              rot, points, A, B):
+              rot, points, A, B, limb=-1, part=_NO_PARTIAL, work=_NO_PARTIAL):
     """(limit violation degrees, silhouette cost cm^2, foot-axis cost cm^2) of the analytic pose
-    for ``axes``, ``swivel``; a term whose weight is 0 is not computed (0)."""
-    pelvis = _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R, (P, f, grid, dt, dt_off),
-                       w_sil * M2_TO_CM2)
+    for ``axes``, ``swivel``; a term whose weight is 0 is not computed (0). With a ``limb``
+    (0-3, the swivel slot) only that limb is posed anew (R holds the rest of the pose, ``_pose``)
+    and its capsules added to ``part``, the partial silhouette sum of the others
+    (``silhouette.add_capsules``; ``work`` its scratch copy): what a search that moves one
+    limb's swivel pays (``_fit``)."""
+    viol = _pose(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local,
+                 dof, lo, hi, foot_pitch, (P, f, grid, dt, dt_off), w_sil * M2_TO_CM2, w_sil > 0.0 or w_foot > 0.0,
+                 R, ang, pos, rot, points, A, B, limb)
+    sil = 0.0
+    foot = 0.0
+    if w_sil > 0.0:
+        if limb < 0:
+            sil = capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline) * M2_TO_CM2
+        else:
+            work[:, :] = part
+            add_capsules(A, B, rad, SWIVEL_CAPSULES[limb], P, f, grid, dt, dt_off, outline, n_outline, work)
+            sil = partial_cost(f, grid, n_outline, work) * M2_TO_CM2
+    if w_foot > 0.0:
+        foot = foot_axis_cost(points, P, f, feet)
+    return viol, sil, foot
+
+
+@njit(cache=True, nogil=True)
+def _pose(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof, lo,
+          hi, foot_pitch, views, w_elbow, capsules, R, ang, pos, rot, points, A, B, limb=-1):
+    """The analytic pose for ``axes``, ``swivel`` in R, ang and, with ``capsules``, its joints,
+    body points and capsules (pos, rot, points, A, B); returns its limit violation (degrees).
+    With a ``limb`` (0-3) only that limb's frames are written anew (``_analytic``): R must hold
+    the rest of the pose."""
+    pelvis = _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R, views, w_elbow, limb)
     _angles_from_frames(parents, rest_local, dof, R, ang)
     viol = 0.0
     for j in range(1, parents.shape[0]):
         viol += joint_violation(ang, lo, hi, dof, j)
-    sil = 0.0
-    foot = 0.0
-    if w_sil > 0.0 or w_foot > 0.0:
+    if capsules:
         fk_kernel(parents, offsets, rest_local, pelvis, ang, pos, rot)
         pose_points(pos, rot, foot_pitch, points)
-    if w_sil > 0.0:
         body_capsules(points, A, B)
-        sil = capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline) * M2_TO_CM2
-    if w_foot > 0.0:
-        foot = foot_axis_cost(points, P, f, feet)
-    return np.degrees(viol), sil, foot
+    return np.degrees(viol)
 
 
 @njit(cache=True, nogil=True)
@@ -158,9 +182,21 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
                 out_terms[0], out_terms[1], out_terms[2], out_terms[3] = cost, viol, sil, foot
     pan_cost = best - out_terms[1] - w_sil * out_terms[2] - w_foot * out_terms[3] - base
     out_swivel[:] = sw
+    # a limb's swivel moves only that limb: each candidate poses only its limb anew (R holds the
+    # best pose so far) and adds its capsules to the other capsules' silhouette sums, taken once
+    # per limb
+    part = new_partial(P.shape[0], outline.shape[1])
+    work = np.empty_like(part)
     for limb in range(4):
         if n_sw == 0:
             break
+        # the best pose so far: the pan's whole, then only the limb just searched comes back to its best
+        _pose(cues, out_axes, out_swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets,
+              rest_local, dof, lo, hi, foot_pitch, (P, f, grid, dt, dt_off), w_sil * M2_TO_CM2, w_sil > 0.0, R, ang,
+              pos, rot, points, A, B, limb - 1)
+        if w_sil > 0.0:
+            reset_partial(part)
+            add_capsules(A, B, rad, SWIVEL_OTHER_CAPSULES[limb], P, f, grid, dt, dt_off, outline, n_outline, part)
         for k in range(-n_sw, n_sw + 1):
             if k == 0:
                 continue
@@ -168,7 +204,8 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
             sw[limb] = swivel_prev[limb] + sw_step * k
             viol, sil, foot = _evaluate(cues, out_axes, sw, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
                                         offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
-                                        outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B)
+                                        outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B,
+                                        limb, part, work)
             cost = viol + w_sil * sil + w_foot * foot + pan_cost
             for i in range(4):
                 cost += c_prior * abs(np.degrees(sw[i])) + c_change * abs(np.degrees(sw[i] - swivel_prev[i]))

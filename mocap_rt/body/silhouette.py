@@ -58,6 +58,12 @@ CAPSULE_RADII_M = np.array(
     + 2 * [bs.UPPER_ARM_RADIUS_M, bs.FOREARM_RADIUS_M, bs.HAND_RADIUS_M, bs.THIGH_RADIUS_M,
            bs.SHIN_RADIUS_M, bs.SHOE_RADIUS_M])
 N_CAPSULES = len(CAPSULE_NAMES)
+# the capsules each limb swivel (arm_l, arm_r, leg_l, leg_r) moves, and the others
+SWIVEL_CAPSULES = np.array([[CAPSULE_NAMES.index(f"{k}_{s}") for k in parts] for parts, s in
+                            ((("upper_arm", "forearm", "hand"), "l"), (("upper_arm", "forearm", "hand"), "r"),
+                             (("thigh", "shin", "foot"), "l"), (("thigh", "shin", "foot"), "r"))], dtype=np.int64)
+SWIVEL_OTHER_CAPSULES = np.array([[k for k in range(N_CAPSULES) if k not in caps] for caps in SWIVEL_CAPSULES],
+                                 dtype=np.int64)
 # (point a, point b) indices into POINT_NAMES of the limb capsules, per side
 _LIMB_CAPS = np.array([[[_P[f"{a}_{s}"], _P[f"{b}_{s}"]] for a, b in
                         (("shoulder", "elbow"), ("elbow", "wrist"), ("wrist", "hand"), ("hip", "knee"),
@@ -190,8 +196,37 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
     ``n_outline`` (C,) of them valid. Returns the mean over valid views of
     (mean model->image + mean image->model squared capped distances).
     """
+    part = new_partial(P.shape[0], outline.shape[1])
+    add_capsules(A, B, rad, np.arange(A.shape[0]), P, f, grid, dt, dt_off, outline, n_outline, part)
+    return partial_cost(f, grid, n_outline, part)
+
+
+@njit(cache=True, nogil=True)
+def new_partial(C, Q):
+    """An empty partial chamfer sum (``add_capsules``) of C views with Q outline points each."""
+    part = np.empty((C, 2 + 2 * Q))
+    reset_partial(part)
+    return part
+
+
+@njit(cache=True, nogil=True)
+def reset_partial(part):
+    """Empty the partial chamfer sum ``part`` (``add_capsules``) in place."""
+    Q = (part.shape[1] - 2) // 2
+    part[:, :2] = 0.0
+    part[:, 2:2 + Q] = 1e30
+    part[:, 2 + Q:] = 3.0
+
+
+@njit(cache=True, nogil=True)
+def add_capsules(A, B, rad, caps, P, f, grid, dt, dt_off, outline, n_outline, part):
+    """Add the capsules ``caps`` (indices into A, B (K, 3), radii (K,)) to the partial chamfer sum
+    ``part`` (C, 2 + 2Q), per view: the model -> image squared capped distances summed, their
+    samples counted, then each outline point's nearest capsule surface so far (px) and its depth.
+    ``partial_cost`` turns it into ``capsules_cost``'s; a search that moves a few capsules sums
+    the others once (``body.fit``). Arguments as ``capsules_cost``."""
     C = P.shape[0]
-    K = A.shape[0]
+    K = caps.shape[0]
     ua = np.empty(K)
     va = np.empty(K)
     ub = np.empty(K)
@@ -208,10 +243,6 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
     Q = outline.shape[1]
     qu = np.empty(Q)
     qv = np.empty(Q)
-    best = np.empty(Q)
-    best_z = np.empty(Q)
-    total = 0.0
-    n_views = 0
     cap2 = CAP_M * CAP_M
     for c in range(C):
         if grid[c, 0] == 0:
@@ -222,39 +253,42 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
         fc = f[c]
         # model -> image: the distance transform at samples along each projected axis
         n_model = 0
-        for k in range(K):
-            ua[k], va[k], za[k] = _project(P[c], A[k])
-            ub[k], vb[k], zb[k] = _project(P[c], B[k])
-            ra[k] = fc * rad[k] / max(za[k], NEAR_Z_M)
-            rb[k] = fc * rad[k] / max(zb[k], NEAR_Z_M)
-            if not (np.isfinite(ua[k]) and np.isfinite(ub[k])):
+        for i in range(K):
+            k = caps[i]
+            ua[i], va[i], za[i] = _project(P[c], A[k])
+            ub[i], vb[i], zb[i] = _project(P[c], B[k])
+            ra[i] = fc * rad[k] / max(za[i], NEAR_Z_M)
+            rb[i] = fc * rad[k] / max(zb[i], NEAR_Z_M)
+            if not (np.isfinite(ua[i]) and np.isfinite(ub[i])):
                 continue
             for si in range(AXIS_SAMPLES):
                 t = si / (AXIS_SAMPLES - 1)
-                su[n_model] = ua[k] + t * (ub[k] - ua[k])
-                sv[n_model] = va[k] + t * (vb[k] - va[k])
-                sz[n_model] = za[k] + t * (zb[k] - za[k])
+                su[n_model] = ua[i] + t * (ub[i] - ua[i])
+                sv[n_model] = va[i] + t * (vb[i] - va[i])
+                sz[n_model] = za[i] + t * (zb[i] - za[i])
                 n_model += 1 if _in_image(su[n_model], sv[n_model], width, height) else 0
         for j in range(n_model):       # the samples' cells (vectorised)
             cell[j], beyond[j] = _cell(su[j], sv[j], x0, y0, step, gh, gw)
-        s_model = 0.0
+        s_model = part[c, 0]
         for j in range(n_model):
             dm = (dt[off + cell[j]] + beyond[j]) * step * sz[j] / fc
             s_model += min(dm * dm, cap2)
+        part[c, 0] = s_model
+        part[c, 1] += n_model
         # image -> model: each outline point's nearest capsule surface (the first of equal
         # ones), capsule by capsule over all the points (a loop the compiler vectorises)
         nq = n_outline[c]
+        best = part[c, 2:2 + Q]
+        best_z = part[c, 2 + Q:]
         for q in range(nq):
             qu[q] = outline[c, q, 0]
             qv[q] = outline[c, q, 1]
-            best[q] = 1e30
-            best_z[q] = 3.0
-        for k in range(K):
-            if not (np.isfinite(ua[k]) and np.isfinite(ub[k])):
+        for i in range(K):
+            if not (np.isfinite(ua[i]) and np.isfinite(ub[i])):
                 continue
-            du, dv = ub[k] - ua[k], vb[k] - va[k]
+            du, dv = ub[i] - ua[i], vb[i] - va[i]
             L2 = du * du + dv * dv
-            a_u, a_v, r0, dr, z0, dz = ua[k], va[k], ra[k], rb[k] - ra[k], za[k], zb[k] - za[k]
+            a_u, a_v, r0, dr, z0, dz = ua[i], va[i], ra[i], rb[i] - ra[i], za[i], zb[i] - za[i]
             seg = L2 > 1e-12
             for q in range(nq):
                 t = min(1.0, max(0.0, ((qu[q] - a_u) * du + (qv[q] - a_v) * dv) / L2)) if seg else 0.0
@@ -263,15 +297,27 @@ def capsules_cost(A, B, rad, P, f, grid, dt, dt_off, outline, n_outline):
                 nearer = d < best[q]
                 best_z[q] = z0 + t * dz if nearer else best_z[q]
                 best[q] = d if nearer else best[q]
-        s_out = 0.0
-        for q in range(nq):
-            dm = max(best[q], 0.0) * best_z[q] / fc
-            s_out += min(dm * dm, cap2)
-        if n_model > 0:
-            total += s_model / n_model
-            if n_outline[c] > 0:
-                total += s_out / n_outline[c]
-            n_views += 1
+
+
+@njit(cache=True, nogil=True)
+def partial_cost(f, grid, n_outline, part):
+    """``capsules_cost`` (m^2) of the capsules summed into ``part`` (``add_capsules``)."""
+    Q = (part.shape[1] - 2) // 2
+    cap2 = CAP_M * CAP_M
+    total = 0.0
+    n_views = 0
+    for c in range(part.shape[0]):
+        if grid[c, 0] == 0 or part[c, 1] == 0:
+            continue
+        total += part[c, 0] / part[c, 1]
+        nq = n_outline[c]
+        if nq > 0:
+            s_out = 0.0
+            for q in range(nq):
+                dm = max(part[c, 2 + q], 0.0) * part[c, 2 + Q + q] / f[c]
+                s_out += min(dm * dm, cap2)
+            total += s_out / nq
+        n_views += 1
     return total / n_views if n_views > 0 else 0.0
 
 

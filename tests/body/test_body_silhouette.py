@@ -194,3 +194,53 @@ def test_fit_brings_a_wrong_heading_back(walk, rendered):
         err = np.degrees(abs((got - true_pan + np.pi) % (2 * np.pi) - np.pi))
         assert err < 15.0, f"frame {f}: pan error {err:.1f} deg"
         assert res.silhouette_cm2 < 5.0
+
+
+def test_the_cost_summed_in_parts_is_the_whole(walk, rendered):
+    """``add_capsules`` over any split of the capsules, then ``partial_cost``, is ``capsules_cost``
+    (what the swivel search sums once per limb and adds each candidate's limb to)."""
+    rig, frames = rendered
+    rng = np.random.default_rng(11)
+    A, B = np.empty((S.N_CAPSULES, 3)), np.empty((S.N_CAPSULES, 3))
+    for f, cues in frames.items():
+        T = S.SilhouetteTargets.from_cues(rig.cameras, cues)
+        args = T.args()
+        S.body_capsules(walk.points[f] + rng.normal(0.0, 0.03, walk.points[f].shape), A, B)
+        whole = S.capsules_cost(A, B, S.CAPSULE_RADII_M, *args)
+        for _ in range(5):
+            first = rng.random(S.N_CAPSULES) < 0.5
+            part = S.new_partial(len(args[0]), args[5].shape[1])
+            for caps in (np.flatnonzero(first), np.flatnonzero(~first)):
+                S.add_capsules(A, B, S.CAPSULE_RADII_M, caps, *args, part)
+            assert S.partial_cost(args[1], args[2], args[6], part) == pytest.approx(whole, rel=1e-12)
+            S.reset_partial(part)
+            assert S.partial_cost(args[1], args[2], args[6], part) == 0.0
+
+
+def test_a_swivel_moves_only_its_limb(walk, rendered):
+    """The swivel search poses only the moved limb anew and scores only its capsules on top of the
+    others' (``fit._evaluate`` with a limb): for every limb and swivel, the same violation,
+    silhouette and foot terms as posing and scoring the whole body."""
+    from mocap_rt.body import fit as Fm
+    rig, frames = rendered
+    lengths = bone_lengths_from_joints(walk.joints)
+    fitter = BodyFitter(body_model(lengths, "paper"))
+    for f, cues in frames.items():
+        T = S.SilhouetteTargets.from_cues(rig.cameras, cues)
+        X = np.ascontiguousarray(walk.joints[f][list(CUE_JOINT_INDEX)])
+        axes = body_axes(X)
+        args, sil = fitter._model_args, T.args()
+        scratch = Fm._scratch(len(JOINT_NAMES))
+        base = np.radians([10.0, -20.0, 5.0, 15.0])
+        for limb in range(4):
+            Fm._pose(X, axes, base, *args[:-1], sil[:5], 1e4, True, *scratch)      # R, A, B of the base pose
+            part = S.new_partial(len(sil[0]), sil[5].shape[1])
+            S.add_capsules(scratch[-2], scratch[-1], S.CAPSULE_RADII_M, S.SWIVEL_OTHER_CAPSULES[limb], *sil, part)
+            for turn in (-45.0, 30.0, 90.0):
+                sw = base.copy()
+                sw[limb] += np.radians(turn)
+                one = Fm._evaluate(X, axes, sw, *args, *sil, Fm._NO_FEET, 1.0, 0.0, *scratch, limb, part,
+                                   np.empty_like(part))
+                whole = Fm._evaluate(X, axes, sw, *args, *sil, Fm._NO_FEET, 1.0, 0.0, *Fm._scratch(len(JOINT_NAMES)))
+                np.testing.assert_allclose(one, whole, rtol=1e-10, atol=1e-12)
+                assert whole[1] > 0.0
