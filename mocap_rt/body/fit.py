@@ -17,9 +17,9 @@ then each limb's swivel over +-``swivel_search_deg`` around its previous
 value (the others held). A swivel moves only its own limb, so each swivel candidate poses that
 limb alone on the rest of the best pose so far and scores its three capsules on top of the
 others' chamfer sums, taken once per limb (``silhouette.add_capsules``): the same costs as
-posing and scoring the whole body, at about half the work. The limits act as bounds through the violation term, which
-dominates (a degree of violation costs as much as 1 cm^2 of silhouette disagreement).
-A mirrored body cannot reach the silhouette's knees and elbows within the limits, which
+posing and scoring the whole body, at about half the work. The limits act as bounds through
+the violation term, which dominates (a degree of violation costs as much as 1 cm^2 of
+silhouette disagreement). A mirrored body cannot reach the silhouette's knees and elbows within the limits, which
 is what makes ``score`` tell the identity hypotheses apart (``fusion.identity``).
 
 Each candidate's elbows are measured too (``elbow_silhouette``): of the elbow poles turned
