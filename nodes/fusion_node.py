@@ -2,8 +2,7 @@
 
 Seed digest A.6 (the PC that does 3D reconstruction and motion generation). For frame ``k``
 the node waits until every *live* camera answered or the deadline
-``t_trigger + deadline_frac * period`` passed, whichever is first (meanwhile it prepares each
-answer's silhouette for the fit, ``BodyTracker.prepare_view``), then calls
+``t_trigger + deadline_frac * period`` passed, whichever is first, then calls
 ``BodyTracker.fit_frame`` with the cameras it has and publishes the ``Pose`` (which names the
 cameras used and the cameras missing), then runs ``identify_frame`` (left/right identity,
 off the latency path) and publishes the next frame's ``CuePrediction`` for every
