@@ -95,7 +95,6 @@ STAGES = (("w_perceive_max", "perception of the slowest camera (duration)"),
           ("w_pub", "last cues published"),
           ("f_first_cue", "first cues received by fusion"),
           ("f_last_cue", "last cues received by fusion"),
-          ("prepare_ms", "fusion: the silhouettes prepared as the cues arrived (duration, summed over the cameras)"),
           ("f_ready", "fusion started (frame complete)"),
           ("step_ms", "BodyTracker.fit_frame (duration; the identity runs after the pose)"),
           ("step_cpu_ms", "  its CPU time (the rest: waiting for a core)"),
@@ -105,12 +104,12 @@ STAGES = (("w_perceive_max", "perception of the slowest camera (duration)"),
 
 def compute_floor_ms(s: dict, n_cameras: int = 6) -> float:
     """The run's compute floor, ms: the cameras' CPU per frame (grab + perceive, p50 of the
-    mean over the cameras) shared by the machine's cores, plus fusion's silhouette preparation,
-    step and prediction (p50), from the service's own stage timings (NaN when missing)."""
+    mean over the cameras) shared by the machine's cores, plus fusion's step and prediction
+    (p50), from the service's own stage timings (NaN when missing)."""
     st = s.get("stages_ms", {})
     try:
         cams = n_cameras * st["w_cpu_mean"]["p50"] / (os.cpu_count() or 1)
-        return cams + sum(st.get(k, {}).get("p50", 0.0) for k in ("prepare_ms", "predict_ms")) + st["step_ms"]["p50"]
+        return cams + st["step_ms"]["p50"] + st.get("predict_ms", {}).get("p50", 0.0)
     except KeyError:
         return float("nan")
 
@@ -189,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     print(slowest_summary(s, Recording(rec).n_frames) + "\n", flush=True)
     floor = compute_floor_ms(s)
     print(f"compute floor {floor:.2f} ms = {floor / ys:.1f} x yardstick (6 cameras' CPU p50 / {os.cpu_count()} cores + "
-          f"fusion's silhouettes, step and predict p50); latency p99 {s['latency_ms']['p99']:.1f} ms = {s['latency_ms']['p99'] / floor:.2f} "
+          f"fusion step + predict p50); latency p99 {s['latency_ms']['p99']:.1f} ms = {s['latency_ms']['p99'] / floor:.2f} "
           f"x floor (target <= 1.5), p50 {s['latency_ms']['p50']:.1f} ms = {s['latency_ms']['p50'] / floor:.2f} x floor",
           flush=True)
     if args.target_only:

@@ -118,21 +118,6 @@ def stage_timings(pf: PendingFrame, t_ready_ns: int) -> dict[str, float]:
     return out
 
 
-def prepare_view(tracker, pf: PendingFrame | None, msg: Cues, rt: NodeRuntime) -> None:
-    """Prepare the silhouette of cues just gathered into ``pf`` (``BodyTracker.prepare_view``),
-    while the frame waits for its other cameras; a failure is counted and logged, and leaves
-    the view for ``fit_frame`` to prepare (and to fail on, as any frame's fusion may)."""
-    if pf is None:
-        return
-    t0 = time.perf_counter()
-    try:
-        pf.views[msg.camera] = tracker.prepare_view(msg.camera, msg.cues)
-    except Exception as exc:  # noqa: BLE001 - a malformed silhouette must not end the service
-        log.warning("fusion: the silhouette of %s, frame %d, not prepared: %s", msg.camera, msg.frame, exc)
-        rt.extra["prepare_errors"] = rt.extra.get("prepare_errors", 0) + 1
-    pf.prepare_ms += (time.perf_counter() - t0) * 1e3
-
-
 def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[str], pred_pubs: dict,
                      pose_pub, rt: NodeRuntime, pose_first: bool = True) -> Pose | None:
     """Step the tracker on one gathered frame and publish the pose and the next frame's
@@ -147,7 +132,7 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
     t_ready_ns = time.monotonic_ns()
     t0, c0 = time.perf_counter(), time.thread_time()
     try:
-        result = tracker.fit_frame(pf.frame, pf.cues, pf.views)
+        result = tracker.fit_frame(pf.frame, pf.cues)
         t1, c1 = time.perf_counter(), time.thread_time()
         predictions = None
         if not pose_first:
@@ -163,8 +148,7 @@ def fuse_and_publish(tracker, keys: Keys, pf: PendingFrame, rig_cameras: list[st
     t3 = time.perf_counter()
     used = tuple(c for c in rig_cameras if c in pf.cues)
     missing = tuple(c for c in rig_cameras if c not in pf.cues)
-    timings = {"step_ms": (t1 - t0) * 1e3, "step_cpu_ms": (c1 - c0) * 1e3, "prepare_ms": pf.prepare_ms,
-               "gather_ms": (t_ready_ns - pf.t_trigger_mono_ns) / 1e6}
+    timings = {"step_ms": (t1 - t0) * 1e3, "step_cpu_ms": (c1 - c0) * 1e3, "gather_ms": (t_ready_ns - pf.t_trigger_mono_ns) / 1e6}
     if predictions is not None:
         timings.update(predict_ms=(t2 - t1) * 1e3, pred_pub_ms=(t3 - t2) * 1e3)
     timings.update(stage_timings(pf, t_ready_ns))
@@ -243,7 +227,7 @@ def run_fusion(session, keys: Keys, rig, tracker, rt: NodeRuntime,
                 if isinstance(msg, Trigger):
                     gather.on_trigger(msg, recv_ns)
                 else:
-                    prepare_view(tracker, gather.on_cues(msg, recv_ns), msg, rt)
+                    gather.on_cues(msg, recv_ns)
                 try:
                     msg = inbox.get_nowait()
                 except queue.Empty:

@@ -28,7 +28,6 @@ per frame at six cameras.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -363,34 +362,6 @@ def _prepare(mask, pad, background, outline, x0, y0, step, width, height):
     return k
 
 
-class PreparedView(NamedTuple):
-    """One camera's silhouette prepared for the cost (``prepare_view``): its outline points
-    (MAX_OUTLINE_POINTS, 2) pixels, ``n_outline`` of them valid, the distance transform (cells)
-    of its padded background, flat float32, and its ``SilhouetteTargets.grid`` row (8,)."""
-
-    n_outline: int
-    outline: np.ndarray
-    dt: np.ndarray
-    grid: np.ndarray
-
-
-def prepare_view(camera: Camera, cues: CameraCues | None) -> PreparedView | None:
-    """``camera``'s silhouette in ``cues`` prepared for ``SilhouetteTargets`` (the padded
-    background's distance transform and the outline points); None without a silhouette or with
-    an empty one."""
-    sil = None if cues is None else cues.silhouette
-    if sil is None or sil.mask.size == 0 or not sil.mask.any():
-        return None
-    h, w = sil.mask.shape
-    bg = np.ones((h + 2 * PAD_CELLS, w + 2 * PAD_CELLS), np.uint8)
-    width, height = camera.size
-    outline = np.zeros((MAX_OUTLINE_POINTS, 2))
-    n = _prepare(sil.mask, PAD_CELLS, bg, outline, sil.x0, sil.y0, sil.step, width, height)
-    d = cv2.distanceTransform(bg, cv2.DIST_L2, 3)
-    grid = np.array([1, sil.x0, sil.y0, sil.step, d.shape[0], d.shape[1], width, height], np.int64)
-    return PreparedView(int(n), outline, d.ravel().astype(np.float32, copy=False), grid)
-
-
 class SilhouetteTargets:
     """One frame's silhouettes of a rig, prepared for ``capsules_cost``.
 
@@ -413,29 +384,29 @@ class SilhouetteTargets:
 
     @classmethod
     def from_cues(cls, cameras: Sequence[Camera], cues: Mapping[str, CameraCues],
-                  projection: tuple[np.ndarray, np.ndarray] | None = None,
-                  views: Mapping[str, PreparedView | None] | None = None) -> "SilhouetteTargets":
+                  projection: tuple[np.ndarray, np.ndarray] | None = None) -> "SilhouetteTargets":
         """The targets of the cameras' silhouettes in ``cues`` (camera name -> CameraCues);
-        ``projection`` = ``rig_projection(cameras)``, precomputed by callers that reuse it;
-        ``views``: cameras' silhouettes prepared already (``prepare_view`` of the same cues, as
-        the fusion node does while it waits for the frame's last camera), the others are
-        prepared here."""
-        views = {} if views is None else views
+        ``projection`` = ``rig_projection(cameras)``, precomputed by callers that reuse it."""
         out = cls(cameras, projection)
         dts = []
         off = 0
         for c, cam in enumerate(cameras):
-            view = views[cam.name] if cam.name in views else prepare_view(cam, cues.get(cam.name))
-            if view is None:
+            cc = cues.get(cam.name)
+            sil = None if cc is None else cc.silhouette
+            if sil is None or sil.mask.size == 0 or not sil.mask.any():
                 continue
-            out.n_outline[c] = view.n_outline
-            out.outline[c] = view.outline
-            out.grid[c] = view.grid
+            h, w = sil.mask.shape
+            bg = np.ones((h + 2 * PAD_CELLS, w + 2 * PAD_CELLS), np.uint8)
+            width, height = cam.size
+            out.n_outline[c] = _prepare(sil.mask, PAD_CELLS, bg, out.outline[c], sil.x0, sil.y0, sil.step, width,
+                                        height)
+            d = cv2.distanceTransform(bg, cv2.DIST_L2, 3)
+            dts.append(d.ravel())
+            out.grid[c] = (1, sil.x0, sil.y0, sil.step, d.shape[0], d.shape[1], width, height)
             out.dt_off[c] = off
-            dts.append(view.dt)
-            off += view.dt.size
+            off += d.size
         if dts:
-            out.dt = np.concatenate(dts)
+            out.dt = np.concatenate(dts).astype(np.float32)
         return out
 
     def args(self) -> tuple:

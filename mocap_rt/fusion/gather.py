@@ -33,8 +33,6 @@ class PendingFrame:
     t_trigger_mono_ns: int
     deadline_ns: int
     cues: dict = field(default_factory=dict)       # camera -> CameraCues
-    views: dict = field(default_factory=dict)      # camera -> its silhouette prepared (the node's, for fit_frame)
-    prepare_ms: float = 0.0                        # the time spent preparing them
     t_first_ns: int = 0
     t_last_ns: int = 0                             # when the last answer arrived
 
@@ -90,18 +88,15 @@ class FrameGatherer:
             self._triggered = True
         self._get(trig.frame, trig.t_mono_ns)
 
-    def on_cues(self, msg, now_ns: int) -> PendingFrame | None:
-        """Take one camera's cues; returns the frame they were gathered into (None: not a rig
-        camera, or a frame fused already)."""
+    def on_cues(self, msg, now_ns: int) -> None:
         if msg.camera not in self.cameras:
-            return None
+            return
         self.last_seen[msg.camera] = now_ns
         pf = self._get(msg.frame, msg.t_trigger_mono_ns)
         if pf is None:
             self.late_cues += 1
-            return None
+            return
         pf.cues[msg.camera] = msg.cues
-        pf.views.pop(msg.camera, None)        # prepared from cues this message replaces
         if not pf.t_first_ns:
             pf.t_first_ns = now_ns
             wait_ns = self._wait_ns()
@@ -110,7 +105,6 @@ class FrameGatherer:
                 # come in the same burst, within the usual wait of this first one
                 pf.deadline_ns = max(pf.deadline_ns, now_ns + wait_ns)
         pf.t_last_ns = max(pf.t_last_ns, now_ns)
-        return pf
 
     def assume_all_live(self, now_ns: int) -> None:
         """Every rig camera not heard of yet counts as live from ``now_ns`` (done at the first

@@ -2,8 +2,7 @@
 
 ``BodyTracker.step(frame, cues)`` runs, for one frame, in this order:
 
-1. silhouettes: the views' compact silhouettes prepared for the fit (``body.silhouette``; the
-   service prepares each as it arrives, ``prepare_view``);
+1. silhouettes: the views' compact silhouettes prepared for the fit (``body.silhouette``);
 2. triangulate: the 2D cues of the cameras present, their left/right labels made to agree
    (``views.fix_left_right``), triangulated by ``FusionConfig.views`` (``"all"``: every
    view that sees a cue, with reprojection outlier rejection; ``"pair"``: the frontal
@@ -53,7 +52,7 @@ import numpy as np
 from mocap_rt.body.analytic import body_axes, pan_angle, refine_pan, refine_swivel
 from mocap_rt.body.bvh_export import bvh_frame
 from mocap_rt.body.foot_axis import axes_only, follow_relabelling, foot_axes
-from mocap_rt.body.silhouette import PreparedView, SilhouetteTargets, prepare_view, rig_projection
+from mocap_rt.body.silhouette import SilhouetteTargets, rig_projection
 from mocap_rt.body.skeleton import N_JOINTS, BoneLengths, J
 from mocap_rt.body.visible import (CUE_CAPSULES, OFFSET_CAPSULES, SHOE_CAPSULES, part_offsets, part_shapes,
                                   pose_visible_parts, rig_rays, shoe_offsets)
@@ -238,24 +237,16 @@ class BodyTracker:
         """Fuse one frame (see the module doc): ``fit_frame`` then ``identify_frame``."""
         return self.identify_frame(self.fit_frame(frame, cues))
 
-    def prepare_view(self, camera: str, cues: CameraCues) -> PreparedView | None:
-        """Stage 1 for one camera (``silhouette.prepare_view``), for ``fit_frame``'s ``views``:
-        the service prepares each camera's silhouette as its cues arrive, while the frame waits
-        for its last camera. KeyError for a camera not in the rig."""
-        return prepare_view(self.cameras[self._index[camera]], cues)
-
-    def fit_frame(self, frame: int, cues: Mapping[str, CameraCues],
-                  views: Mapping[str, PreparedView | None] | None = None) -> FusionResult:
+    def fit_frame(self, frame: int, cues: Mapping[str, CameraCues]) -> FusionResult:
         """Stages 1-4 of one frame (module doc): the frame's pose, with the labels the earlier
         frames decided. ``identify_frame`` must follow before the next frame (the service
-        publishes the pose in between: the identity is off the latency path). ``views``: the
-        cameras' silhouettes prepared already (``prepare_view`` of these ``cues``)."""
+        publishes the pose in between: the identity is off the latency path)."""
         t0 = time.perf_counter()
         self._poll_fitted()
         timings: dict[str, float] = {}
         t_s = frame / self.config.fps
         uv, w = cue_pixels(cues, self._index, len(self.cameras), self.config.min_confidence)
-        targets = (SilhouetteTargets.from_cues(self.cameras, cues, self._sil_projection, views)
+        targets = (SilhouetteTargets.from_cues(self.cameras, cues, self._sil_projection)
                    if self.config.silhouettes else None)
         feet = (foot_axes(cues, self._names, w) if targets is not None and self.config.fit.foot_axis_weight > 0
                 else None)

@@ -244,19 +244,3 @@ def test_a_swivel_moves_only_its_limb(walk, rendered):
                 whole = Fm._evaluate(X, axes, sw, *args, *sil, Fm._NO_FEET, 1.0, 0.0, *Fm._scratch(len(JOINT_NAMES)))
                 np.testing.assert_allclose(one, whole, rtol=1e-10, atol=1e-12)
                 assert whole[1] > 0.0
-
-
-def test_silhouettes_prepared_one_camera_at_a_time_are_the_frames(rendered):
-    """``from_cues`` with some cameras' views prepared already (``prepare_view``, as the fusion
-    node prepares each camera's while the frame waits for the others) builds the same targets;
-    a camera prepared as None (no silhouette) is left out."""
-    rig, frames = rendered
-    for cues in frames.values():
-        whole = S.SilhouetteTargets.from_cues(rig.cameras, cues)
-        assert whole.n_views == len(rig.cameras)
-        views = {c.name: S.prepare_view(c, cues[c.name]) for c in rig.cameras[::2]}
-        part = S.SilhouetteTargets.from_cues(rig.cameras, cues, views=views)
-        for a, b in zip(whole.args(), part.args()):
-            np.testing.assert_array_equal(a, b)
-        views[rig.cameras[1].name] = None
-        assert S.SilhouetteTargets.from_cues(rig.cameras, cues, views=views).n_views == len(rig.cameras) - 1

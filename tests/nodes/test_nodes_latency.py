@@ -60,7 +60,7 @@ class _Tracker:
         self.cams, self.calls = cams, calls
         self.lengths = BoneLengths()
 
-    def fit_frame(self, frame, cues, views=None):
+    def fit_frame(self, frame, cues):
         self.calls.append(("fit_frame", frame))
         return SimpleNamespace(cues_3d=np.zeros((6, 3)), cue_valid=np.ones(6, bool), joints=np.zeros((20, 3)),
                                bvh_frame=np.zeros(10), timings_ms={"ik": 0.5})

@@ -164,48 +164,6 @@ def test_gatherer_drops_empty_frames_and_overtaken_frames():
     assert 2 not in g.pending
 
 
-def test_gatherer_hands_back_the_frame_and_forgets_a_view_of_replaced_cues():
-    """``on_cues`` returns the frame the cues went into (where the node keeps the camera's
-    prepared silhouette, ``PendingFrame.views``); cues that replace a camera's drop its view,
-    so ``fit_frame`` never scores a silhouette of other cues."""
-    g = FrameGatherer(["a", "b"], deadline_frac=0.5, liveness_s=1.0)
-    g.on_trigger(Trigger("r", 0, 0, 0, 10 * MS), now_ns=0)
-    pf = g.on_cues(_cues("a", 0, 0), 1 * MS)
-    assert pf is g.pending[0] and set(pf.cues) == {"a"}
-    pf.views["a"] = "prepared"
-    assert g.on_cues(_cues("a", 0, 0), 2 * MS) is pf and "a" not in pf.views
-    assert g.on_cues(_cues("zzz", 0, 0), 2 * MS) is None        # not a rig camera
-    g.on_cues(_cues("b", 0, 0), 2 * MS)
-    assert [f.frame for f in g.ready(3 * MS)] == [0]
-    assert g.on_cues(_cues("a", 0, 0), 4 * MS) is None           # frame fused already
-
-
-def test_fusion_node_prepares_a_view_and_counts_one_it_cannot(caplog):
-    """The node prepares each camera's silhouette as its cues arrive; a silhouette that fails
-    to prepare is counted and logged, not raised (the loop must not die), and its view is left
-    for ``fit_frame``."""
-    from nodes.fusion_node import prepare_view
-
-    class Tracker:
-        def prepare_view(self, camera, cues):
-            if camera == "bad":
-                raise ValueError("broken silhouette")
-            return ("view", camera)
-
-    g = FrameGatherer(["a", "bad"], deadline_frac=0.5, liveness_s=1.0)
-    g.on_trigger(Trigger("r", 0, 0, 0, 10 * MS), now_ns=0)
-    rt = NodeRuntime.__new__(NodeRuntime)
-    rt.extra = {}
-    for cam in ("a", "bad"):
-        msg = _cues(cam, 0, 0)
-        prepare_view(Tracker(), g.on_cues(msg, 1 * MS), msg, rt)
-    pf = g.pending[0]
-    assert pf.views == {"a": ("view", "a")} and set(pf.cues) == {"a", "bad"}
-    assert rt.extra["prepare_errors"] == 1 and "bad" in caplog.text
-    assert pf.prepare_ms > 0.0
-    prepare_view(Tracker(), None, _cues("a", 5, 0), rt)           # a late answer: nothing to do
-
-
 # ------------------------------------------------------------------ grabber / fake device
 def _pattern(i: int) -> np.ndarray:
     img = np.zeros((8, 8, 3), np.uint8)
