@@ -39,6 +39,16 @@ def _nunit(v, fallback):
 
 
 @njit(cache=True, nogil=True)
+def _unit_or_none(v):
+    """``v`` / |v| as ``_nunit`` gives it, or None where ``_nunit`` takes its fallback: the
+    callers build a fallback only when it is needed (arrays cost more than the maths here)."""
+    n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if n > 1e-9 and np.isfinite(n):
+        return v / n
+    return None
+
+
+@njit(cache=True, nogil=True)
 def _reach(dist, L1, L2):
     """(L, cos_a): the distance ``dist`` (m) from a two-link limb's root to its goal clamped into
     the reachable [|L1 - L2|, L1 + L2] (folded no tighter than ``MIN_REACH_FRAC``), and the
@@ -60,11 +70,13 @@ def _two_link(root, goal, L1, L2, pole):
     """
     d = goal - root
     dist = np.sqrt(d @ d)
-    down = np.array([0.0, 0.0, -1.0])
-    u = _nunit(d, -pole if abs(pole[2]) < 0.9 else down)
+    u = _unit_or_none(d)
+    if u is None:
+        u = -pole if abs(pole[2]) < 0.9 else np.array([0.0, 0.0, -1.0])
     L, cos_a = _reach(dist, L1, L2)
-    w = pole - u * (pole @ u)
-    w = _nunit(w, _nunit(_cross(u, np.array([1.0, 0.0, 0.0])), np.array([0.0, 1.0, 0.0])))
+    w = _unit_or_none(pole - u * (pole @ u))
+    if w is None:
+        w = _nunit(_cross(u, np.array([1.0, 0.0, 0.0])), np.array([0.0, 1.0, 0.0]))
     mid = root + L1 * (cos_a * u + np.sqrt(1 - cos_a * cos_a) * w)
     return mid, root + L * u, u, w
 
@@ -79,9 +91,12 @@ def _rot_about(axis, angle, v):
 @njit(cache=True, nogil=True)
 def _frame(z, x_hint, out):
     """Write into ``out`` (3, 3) the frame with Z along ``z`` and X nearest ``x_hint``."""
-    z = _nunit(z, np.array([0.0, 0.0, -1.0]))
-    x = x_hint - z * (x_hint @ z)
-    x = _nunit(x, _nunit(_cross(np.array([0.0, 1.0, 0.0]), z), np.array([1.0, 0.0, 0.0])))
+    z = _unit_or_none(z)
+    if z is None:
+        z = np.array([0.0, 0.0, -1.0])
+    x = _unit_or_none(x_hint - z * (x_hint @ z))
+    if x is None:
+        x = _nunit(_cross(np.array([0.0, 1.0, 0.0]), z), np.array([1.0, 0.0, 0.0]))
     y = _cross(z, x)
     for i in range(3):
         out[i, 0], out[i, 1], out[i, 2] = x[i], y[i], z[i]
