@@ -6,6 +6,7 @@ import pytest
 from mocap_rt.body import silhouette as S
 from mocap_rt.body.analytic import body_axes
 from mocap_rt.body.estimate import bone_lengths_from_joints
+from mocap_rt.body import fit as Fm
 from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import J, BoneLengths, body_model
@@ -219,9 +220,8 @@ def test_the_cost_summed_in_parts_is_the_whole(walk, rendered):
 
 def test_a_swivel_moves_only_its_limb(walk, rendered):
     """The swivel search poses only the moved limb anew and scores only its capsules on top of the
-    others' (``fit._evaluate`` with a limb): for every limb and swivel, the same violation,
-    silhouette and foot terms as posing and scoring the whole body."""
-    from mocap_rt.body import fit as Fm
+    others' (``fit._evaluate`` with a limb): for every limb and swivel, the same violation and
+    silhouette terms as posing and scoring the whole body."""
     rig, frames = rendered
     lengths = bone_lengths_from_joints(walk.joints)
     fitter = BodyFitter(body_model(lengths, "paper"))
