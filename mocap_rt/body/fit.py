@@ -185,14 +185,14 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
                 out_terms[0], out_terms[1], out_terms[2], out_terms[3] = cost, viol, sil, foot
     pan_cost = best - out_terms[1] - w_sil * out_terms[2] - w_foot * out_terms[3] - base
     out_swivel[:] = sw
+    if n_sw == 0:
+        return
     # a limb's swivel moves only that limb: each candidate poses only its limb anew (R holds the
     # best pose so far) and adds its capsules to the other capsules' silhouette sums, taken once
     # per limb
     part = new_partial(P.shape[0], outline.shape[1])
     work = np.empty_like(part)
     for limb in range(4):
-        if n_sw == 0:
-            break
         # the best pose so far: the pan's whole, then only the limb just searched comes back to its best
         _pose(cues, out_axes, out_swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets,
               rest_local, dof, lo, hi, foot_pitch, (P, f, grid, dt, dt_off), w_sil * M2_TO_CM2, w_sil > 0.0, R, ang,

@@ -235,10 +235,15 @@ def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndar
     return float(np.linalg.norm(p1 + s * d1 - (p2 + t * d2)))
 
 
+def _hips_and_feet_known(hips: np.ndarray | None, cues: np.ndarray) -> bool:
+    """The ``hips`` (2, 3) given and finite, and both feet cues of ``cues`` (6, 3) finite."""
+    return hips is not None and bool(np.isfinite(hips).all()) and bool(np.isfinite(cues[list(FEET)]).all())
+
+
 def feet_together(hips: np.ndarray | None, cues: np.ndarray, factor: float) -> bool:
     """The feet cues (of ``cues`` (6, 3)) lie closer together than ``factor`` times the
     distance between the ``hips`` (2, 3) (a recent pose's; None or NaN: False)."""
-    if hips is None or factor <= 0 or not (np.isfinite(hips).all() and np.isfinite(cues[list(FEET)]).all()):
+    if factor <= 0 or not _hips_and_feet_known(hips, cues):
         return False
     fl, fr = FEET
     return bool(np.linalg.norm(cues[fl] - cues[fr]) < factor * np.linalg.norm(hips[0] - hips[1]))
@@ -247,8 +252,7 @@ def feet_together(hips: np.ndarray | None, cues: np.ndarray, factor: float) -> b
 def feet_told_apart(hips: np.ndarray | None, cues: np.ndarray, factor: float) -> bool:
     """The fit can tell the feet apart: the ``hips`` and both feet cues known, and the feet not
     ``feet_together`` (what decides their labels, ``IdentityState.feet_decided``)."""
-    return (hips is not None and bool(np.isfinite(hips).all()) and bool(np.isfinite(cues[list(FEET)]).all())
-            and not feet_together(hips, cues, factor))
+    return _hips_and_feet_known(hips, cues) and not feet_together(hips, cues, factor)
 
 
 def crossed_legs_cm2(hips: np.ndarray | None, cues: np.ndarray, clearance_m: float = LEG_CLEARANCE_M) -> float:
