@@ -260,9 +260,9 @@ def crossed_legs_cm2(hips: np.ndarray | None, cues: np.ndarray, clearance_m: flo
     world; a recent pose's) to the feet ``cues`` (6, 3), pass through each other: ``(clearance
     - d)^2`` where their distance d is under ``clearance_m`` and the exchanged feet's legs keep
     at least ``clearance_m``; else 0 (legs apart, or both labellings crossed: feet together)."""
-    fl, fr = FEET
-    if hips is None or not np.isfinite(cues[[fl, fr]]).all() or not np.isfinite(hips).all():
+    if not _hips_and_feet_known(hips, cues):
         return 0.0
+    fl, fr = FEET
     d = segment_distance(hips[0], cues[fl], hips[1], cues[fr])
     if d >= clearance_m or segment_distance(hips[0], cues[fr], hips[1], cues[fl]) < clearance_m:
         return 0.0
