@@ -31,21 +31,20 @@ def _cross(a, b):
 
 
 @njit(cache=True, nogil=True)
-def _nunit(v, fallback):
-    n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    if n > 1e-9 and np.isfinite(n):
-        return v / n
-    return fallback.copy()
-
-
-@njit(cache=True, nogil=True)
 def _unit_or_none(v):
-    """``v`` / |v| as ``_nunit`` gives it, or None where ``_nunit`` takes its fallback: the
-    callers build a fallback only when it is needed (arrays cost more than the maths here)."""
+    """``v`` / |v|, or None where |v| is ~0 or not finite: callers that would build a fallback
+    array build it only when it is needed (arrays cost more than the maths here)."""
     n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     if n > 1e-9 and np.isfinite(n):
         return v / n
     return None
+
+
+@njit(cache=True, nogil=True)
+def _nunit(v, fallback):
+    """``v`` / |v|, or a copy of ``fallback`` where ``_unit_or_none`` finds no direction."""
+    u = _unit_or_none(v)
+    return fallback.copy() if u is None else u
 
 
 @njit(cache=True, nogil=True)
