@@ -13,8 +13,8 @@ chooses them: each candidate is an analytic pose (``analytic._analytic``) scored
 
 and searched coordinate-wise in numba: the pan over +-``pan_search_deg`` around the
 given axes (``pan_step_deg``, then ``pan_refine`` halvings of the step around the best),
-then each limb's swivel over +-``swivel_search_deg`` around its previous
-value (the others held). A swivel moves only its own limb, so each swivel candidate poses that
+then each limb's swivel (of the limbs asked for) over +-``swivel_search_deg`` around its
+previous value (the others held). A swivel moves only its own limb, so each swivel candidate poses that
 limb alone on the rest of the best pose so far and scores its three capsules on top of the
 others' chamfer sums, taken once per limb (``silhouette.add_capsules``): the same costs as
 posing and scoring the whole body, at about half the work. The limits act as bounds through
@@ -36,6 +36,7 @@ silhouettes (``_fit_torso``), kept where it costs less than the plain pose.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -76,8 +77,9 @@ class FitConfig:
     torso_shift_cost: float = 0.1      # per cm the torso point moved from its cue
     refine_trunk: bool = True          # the published pose's trunk hung from the head cue and tilted to the
                                        # silhouettes where that fits them better (refine_trunk, the tracker)
-    published_swivel_search_deg: float = 60.0   # the published pose's swivels searched again this far around
-    published_swivel_prior_cost: float = 0.0    # the state's, at this prior (0 = off; fusion.solver), then
+    published_swivel_search_deg: float = 60.0   # the published pose's knees searched again this far around
+    published_swivel_prior_cost: float = 0.0    # the state's, at this prior (0 = off; fusion.solver),
+    published_arm_search_deg: float = 180.0     # its elbows this far (180: all round) at no change cost, then
     published_swivel_refine: int = 2            # the step halved this many times around the best
     published_pelvis_twist_deg: float = 45.0    # the published pose's pelvis turned to the knees' hinges, at
                                                 # most this far (0 = off; body.pelvis, fusion.solver)
@@ -146,8 +148,8 @@ def _scratch(nj):
 
 @njit(cache=True, nogil=True)
 def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
-         lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w, pan_offsets, n_refine, n_sw,
-         sw_step, out_axes, out_swivel, out_terms):
+         lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w, pan_offsets, n_refine, sw_offsets,
+         sw_limbs, out_axes, out_swivel, out_terms):
     """Coordinate search (see the module doc); writes the best axes (3, 3), swivel (4,)
     and terms (total, violation, silhouette, foot axis) into the ``out_*`` arrays."""
     R, ang, pos, rot, points, A, B = _scratch(parents.shape[0])
@@ -185,26 +187,28 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
                 out_terms[0], out_terms[1], out_terms[2], out_terms[3] = cost, viol, sil, foot
     pan_cost = best - out_terms[1] - w_sil * out_terms[2] - w_foot * out_terms[3] - base
     out_swivel[:] = sw
-    if n_sw == 0:
+    if sw_offsets.shape[0] == 0:
         return
     # a limb's swivel moves only that limb: each candidate poses only its limb anew (R holds the
     # best pose so far) and adds its capsules to the other capsules' silhouette sums, taken once
     # per limb
     part = new_partial(P.shape[0], outline.shape[1])
     work = np.empty_like(part)
+    last = -1                   # the limb searched last (-1: none yet, the whole pose is posed anew)
     for limb in range(4):
+        if not sw_limbs[limb]:
+            continue
         # the best pose so far: the pan's whole, then only the limb just searched comes back to its best
         _pose(cues, out_axes, out_swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets,
               rest_local, dof, lo, hi, foot_pitch, (P, f, grid, dt, dt_off), w_sil * M2_TO_CM2, w_sil > 0.0, R, ang,
-              pos, rot, points, A, B, limb - 1)
+              pos, rot, points, A, B, last)
+        last = limb
         if w_sil > 0.0:
             reset_partial(part)
             add_capsules(A, B, rad, SWIVEL_OTHER_CAPSULES[limb], P, f, grid, dt, dt_off, outline, n_outline, part)
-        for k in range(-n_sw, n_sw + 1):
-            if k == 0:
-                continue
+        for k in range(sw_offsets.shape[0]):
             sw[:] = out_swivel
-            sw[limb] = swivel_prev[limb] + sw_step * k
+            sw[limb] = swivel_prev[limb] + sw_offsets[k]
             viol, sil, foot = _evaluate(cues, out_axes, sw, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
                                         offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
                                         outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B,
@@ -309,12 +313,13 @@ class BodyFitter:
             targets: SilhouetteTargets | None, search_swivel: bool = True, pan_search_deg: float | None = None,
             pan_step_deg: float | None = None, pan_refine: int | None = None,
             feet: np.ndarray | None = None, measured_elbows: bool = True, swivel_search_deg: float | None = None,
-            swivel_step_deg: float | None = None) -> FitResult:
+            swivel_step_deg: float | None = None, swivel_limbs: Sequence[bool] | None = None) -> FitResult:
         """Best pan and swivels for cues (6, 3) (all finite, metres, world) from ``axes``
         (3, 3) and the previous ``swivel`` (4,) radians; ``targets`` None = limits only.
         The pan is searched within +-``pan_search_deg`` in steps of ``pan_step_deg``, then
         refined ``pan_refine`` times; each limb's swivel within +-``swivel_search_deg`` in steps of
-        ``swivel_step_deg`` (defaults: the config's). ``feet`` (6, C, N_FOOT_COLS): the
+        ``swivel_step_deg`` (defaults: the config's; 180: all round), of the limbs that
+        ``swivel_limbs`` (4 bools: arm_l, arm_r, leg_l, leg_r; default all) names. ``feet`` (6, C, N_FOOT_COLS): the
         measured shoe axes of ``targets``' cameras labelled like ``cues``
         (``foot_axis.foot_axes``); used with ``targets`` only (they carry the projection).
         ``measured_elbows`` False: the fixed elbow pole even with views (``elbow_silhouette``)."""
@@ -338,11 +343,14 @@ class BodyFitter:
         sw_deg = c.swivel_search_deg if swivel_search_deg is None else swivel_search_deg
         sw_step = c.swivel_step_deg if swivel_step_deg is None else swivel_step_deg
         n_sw = int(sw_deg // sw_step) if (search_swivel and sw_step > 0) else 0
+        k = np.arange(-n_sw, n_sw + 1)
+        sw_offsets = np.radians(sw_step) * k[(k != 0) & (k * sw_step > -180.0)]      # -180 deg is 180
+        sw_limbs = np.ones(4, np.bool_) if swivel_limbs is None else np.asarray(swivel_limbs, np.bool_)
         sw0 = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
         model_args = self._model_args if (have and measured_elbows) else self._fixed_args
         _fit(np.ascontiguousarray(cues, np.float64), np.ascontiguousarray(axes, np.float64), sw0, *model_args,
              *sil_args, feet2, w, offsets,
-             c.pan_refine if pan_refine is None else pan_refine, n_sw, np.radians(sw_step), out_axes, out_sw,
+             c.pan_refine if pan_refine is None else pan_refine, sw_offsets, sw_limbs, out_axes, out_sw,
              terms)
         return FitResult(out_axes, out_sw, float(terms[0]), float(terms[1]), float(terms[2]), float(terms[3]))
 

@@ -9,12 +9,16 @@ The published pose (``solve``) is refined beyond the state's, in two steps that 
 silhouettes decide, so that perception, the identity and the calibration, which work on the
 state, are unchanged by them:
 
-1. the elbow and knee swivels searched again, ``FitConfig.published_swivel_search_deg`` around
-   the state's at ``published_swivel_prior_cost`` a degree away from the default pole, then
-   refined by ``published_swivel_refine`` halvings of the step around the best, on the
-   silhouettes and limits alone. The state's search keeps its narrower range and its prior (0.1
-   a degree), which hold the identity: a weaker prior there flipped clips and lost cues
-   (docs/body.md, "The swivels' prior");
+1. the knee swivels searched again, ``FitConfig.published_swivel_search_deg`` around the
+   state's at ``published_swivel_prior_cost`` a degree away from the default pole; then the
+   elbow swivels, ``published_arm_search_deg`` (all round) on the silhouettes and limits alone;
+   then every swivel refined by ``published_swivel_refine`` halvings of the step around the
+   best, on the silhouettes and limits alone. The state's search keeps its narrower range and
+   its prior (0.1 a degree), which hold the identity: a weaker prior there flipped clips and
+   lost cues (docs/body.md, "The swivels' prior"). The knees keep the narrower search and its
+   change cost: all four limbs searched all round mirrored more of the suite's frames (docs/body.md,
+   "Experiments of the thirty-third stop"), the elbows alone fewer ("The published elbows searched
+   all round");
 2. the trunk hung from the head cue and tilted to the silhouettes (``BodyFitter.refine_trunk``)
    where that fits them better;
 3. the pelvis turned about the spine to where the knees' hinges point (``body.pelvis``, at most
@@ -42,6 +46,7 @@ from mocap_rt.names import C_TORSO, CUE_INDEX, CUE_JOINT_INDEX
 
 _EFFECTOR_CUES = np.array([CUE_INDEX[n] for n in END_EFFECTORS])
 _EFFECTOR_JOINTS = np.array([J[n] for n in END_EFFECTORS])
+_ARMS, _LEGS = (True, True, False, False), (False, False, True, True)       # swivel slots searched
 
 Pose = tuple[np.ndarray, np.ndarray, np.ndarray]       # root (3,), angles (J, 3) rad, joints (J, 3) m
 
@@ -58,12 +63,13 @@ class PoseSolver:
         self.rest_cues = self.model.rest_positions()[list(CUE_JOINT_INDEX)]
         self.rest_cues[C_TORSO, 2] += lengths.torso_cue_up_m      # the cue, not the joint (rest: Z up)
         self.fitter = BodyFitter(self.model, config.analytic, config.fit)
-        fit, on = config.fit, config.fit.published_swivel_search_deg > 0
+        fit = config.fit
         self._swivel_fitter = (BodyFitter(self.model, config.analytic, replace(
             fit, swivel_search_deg=fit.published_swivel_search_deg, swivel_prior_cost=fit.published_swivel_prior_cost))
-            if on else None)
+            if fit.published_swivel_search_deg > 0 else None)
         self._swivel_refiner = (BodyFitter(self.model, config.analytic, replace(
-            fit, swivel_prior_cost=0.0, swivel_change_cost=0.0)) if on and fit.published_swivel_refine > 0 else None)
+            fit, swivel_prior_cost=0.0, swivel_change_cost=0.0))
+            if fit.published_swivel_search_deg > 0 or fit.published_arm_search_deg > 0 else None)
 
     @property
     def pose_model(self):
@@ -104,16 +110,23 @@ class PoseSolver:
     def published_swivel(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
                          targets: SilhouetteTargets | None) -> np.ndarray | None:
         """The swivels (4,) searched again around ``swivel`` on the silhouettes, then refined
-        (module doc, step 1), the pan kept; None without views, a missing trunk cue or the search
-        off."""
-        if self._swivel_fitter is None or targets is None or targets.n_views == 0:
+        (module doc, step 1), the pan kept; None without views, a missing trunk cue or both
+        searches off."""
+        if self._swivel_refiner is None or targets is None or targets.n_views == 0:
             return None
         full = self.fill_missing(cues_ik, axes)
         if not np.isfinite(full).all():
             return None
-        sw = self._swivel_fitter.fit(full, axes, swivel, targets, pan_search_deg=0.0, pan_refine=0).swivel
-        step = self.config.fit.swivel_step_deg
-        for _ in range(self.config.fit.published_swivel_refine):
+        fit = self.config.fit
+        sw = np.zeros(4) if swivel is None else swivel
+        if self._swivel_fitter is not None:
+            sw = self._swivel_fitter.fit(full, axes, sw, targets, pan_search_deg=0.0, pan_refine=0,
+                                         swivel_limbs=_LEGS).swivel
+        if fit.published_arm_search_deg > 0:
+            sw = self._swivel_refiner.fit(full, axes, sw, targets, pan_search_deg=0.0, pan_refine=0,
+                                          swivel_search_deg=fit.published_arm_search_deg, swivel_limbs=_ARMS).swivel
+        step = fit.swivel_step_deg
+        for _ in range(fit.published_swivel_refine):
             step /= 2
             sw = self._swivel_refiner.fit(full, axes, sw, targets, pan_search_deg=0.0, pan_refine=0,
                                           swivel_search_deg=step, swivel_step_deg=step).swivel

@@ -244,3 +244,39 @@ def test_a_swivel_moves_only_its_limb(walk, rendered):
                 whole = Fm._evaluate(X, axes, sw, *args, *sil, Fm._NO_FEET, 1.0, 0.0, *Fm._scratch(len(JOINT_NAMES)))
                 np.testing.assert_allclose(one, whole, rtol=1e-10, atol=1e-12)
                 assert whole[1] > 0.0
+
+
+def test_a_search_of_chosen_limbs_is_the_exhaustive_best_and_keeps_the_others(walk, rendered):
+    """``fit`` with ``swivel_limbs`` and a search all round (what the published elbows' search
+    asks, ``fusion.solver``): the searched limbs, one after the other, end at the candidate whose
+    whole pose scores least (the start included), each judged with the earlier limbs at their
+    best; the limbs not searched keep their swivels exactly."""
+    from dataclasses import replace
+    rig, frames = rendered
+    lengths = bone_lengths_from_joints(walk.joints)
+    fitter = BodyFitter(body_model(lengths, "paper"))
+    fitter.config = replace(fitter.config, swivel_prior_cost=0.0, swivel_change_cost=0.0)
+    offsets = 30.0 * np.arange(-5, 7)
+    offsets = offsets[offsets != 0]                     # all round: -180 is 180
+    moved = []
+    for f, cues in frames.items():
+        T = S.SilhouetteTargets.from_cues(rig.cameras, cues)
+        X = np.ascontiguousarray(walk.joints[f][list(CUE_JOINT_INDEX)])
+        axes = body_axes(X)
+        start = np.radians([160.0, -170.0, 5.0, 15.0])        # the arms turned half round
+        res = fitter.fit(X, axes, start, T, pan_search_deg=0.0, pan_refine=0,
+                         swivel_search_deg=180.0, swivel_step_deg=30.0, swivel_limbs=(True, True, False, False))
+        np.testing.assert_array_equal(res.swivel[2:], start[2:])
+        expect = start.copy()
+        for limb in (0, 1):
+            costs = []
+            for off in np.concatenate([[0.0], offsets]):
+                sw = expect.copy()
+                sw[limb] = start[limb] + np.radians(off)
+                viol, sil, _ = Fm._evaluate(X, axes, sw, *fitter._model_args, *T.args(), Fm._NO_FEET, 1.0, 0.0,
+                                            *Fm._scratch(len(JOINT_NAMES)))
+                costs.append(viol + sil)
+            expect[limb] = start[limb] + np.radians(np.concatenate([[0.0], offsets])[int(np.argmin(costs))])
+        np.testing.assert_allclose(res.swivel, expect, atol=1e-12)
+        moved.append(not np.allclose(res.swivel[:2], start[:2]))
+    assert any(moved)           # somewhere an arm's turn half round is undone

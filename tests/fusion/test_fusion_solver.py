@@ -30,6 +30,11 @@ SWIVEL = np.radians([45.0, -50.0, -40.0, 40.0])
 def frames():
     """Six rendered poses with the limbs bent and swivelled: cues (6, 3), axes, silhouettes,
     true joints (J, 3)."""
+    return _rendered(SWIVEL)
+
+
+def _rendered(swivel: np.ndarray) -> list[tuple]:
+    """Six poses of the subject holding ``swivel`` (the limbs bent), rendered (``frames``)."""
     rig = ring_rig(6, size=(640, 480))
     model = body_model(LENGTHS, "paper")
     ren = StudioRenderer(rig, config=RenderConfig(noise_sigma_levels=0.0))
@@ -45,7 +50,7 @@ def frames():
             cues[c] = torso + R @ np.array([sx * rng.uniform(0.1, 0.25), rng.uniform(0.25, 0.4), rng.uniform(-0.2, 0.1)])
         for c, sx in ((3, -1.0), (4, 1.0)):       # feet raised: the knees bent
             cues[c] = cues[c] + R @ np.array([0.0, rng.uniform(0.05, 0.15), rng.uniform(0.15, 0.3)])
-        root, angles = analytic_pose(model, cues, R, swivel=SWIVEL)
+        root, angles = analytic_pose(model, cues, R, swivel=swivel)
         pos, rot = forward_kinematics(model, root, angles)
         pts = np.empty((len(POINT_NAMES), 3))
         pose_points(pos, rot, np.radians(LENGTHS.foot_pitch_deg), pts)
@@ -66,7 +71,8 @@ def test_the_published_swivels_reach_what_the_state_holds_back(frames):
     and the pelvis's turn off so that the swivels alone are measured."""
     config = FusionConfig(fit=FitConfig(refine_trunk=False, published_pelvis_twist_deg=0.0))
     solver = PoseSolver(LENGTHS, config)
-    off = PoseSolver(LENGTHS, replace(config, fit=replace(config.fit, published_swivel_search_deg=0.0)))
+    off = PoseSolver(LENGTHS, replace(config, fit=replace(config.fit, published_swivel_search_deg=0.0,
+                                                                   published_arm_search_deg=0.0)))
     coarse = PoseSolver(LENGTHS, replace(config, fit=replace(config.fit, published_swivel_refine=0)))
     plain_err, published_err, coarse_err = [], [], []
     for cues, axes, targets, truth in frames:
@@ -82,6 +88,27 @@ def test_the_published_swivels_reach_what_the_state_holds_back(frames):
         assert solver.published_swivel(cues, axes, zero, None) is None       # nothing to see
     assert np.mean(coarse_err) < 0.5 * np.mean(plain_err), (plain_err, coarse_err)          # 182 -> 68 mm
     assert np.mean(published_err) < 0.6 * np.mean(coarse_err), (coarse_err, published_err)  # the halvings: 26 mm
+
+
+def test_the_published_elbows_are_searched_all_round(frames):
+    """The state holding the elbows turned 120 or 180 deg from the subject's, beyond the reach of
+    a search around it (60 deg and the halvings): the published elbows' search all round
+    (``FitConfig.published_arm_search_deg``) finds the subject's on the silhouettes; the knees'
+    swivels come out as without it."""
+    config = FusionConfig(fit=FitConfig(refine_trunk=False, published_pelvis_twist_deg=0.0))
+    solver = PoseSolver(LENGTHS, config)
+    near = PoseSolver(LENGTHS, replace(config, fit=replace(config.fit, published_arm_search_deg=60.0)))
+    elbows = [J["elbow_l"], J["elbow_r"]]
+    for turn in (120.0, 180.0):
+        err_near, err_round = [], []
+        for cues, axes, targets, truth in frames:
+            state = SWIVEL + np.radians([turn, -turn, 0.0, 0.0])
+            for s, errs in ((near, err_near), (solver, err_round)):
+                errs.append(1000 * np.linalg.norm(s.solve(cues, axes, state, targets)[2][elbows] - truth[elbows],
+                                                  axis=1).mean())
+            np.testing.assert_array_equal(solver.published_swivel(cues, axes, state, targets)[2:],
+                                          near.published_swivel(cues, axes, state, targets)[2:])
+        assert np.mean(err_near) > 50.0 and np.mean(err_round) < 10.0, (turn, err_near, err_round)   # 71-236 -> 1 mm
 
 
 def test_the_plain_pose_given_is_the_one_returned_when_nothing_refines_it(frames):

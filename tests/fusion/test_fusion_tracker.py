@@ -249,7 +249,7 @@ def test_the_published_pose_has_its_trunk_refined_and_the_state_keeps_the_plain_
     rec = Recording(kick_reversed)
     truth, names = rec.truth, list(rec.rig.names)
     widths = {c.name: int(c.size[0]) for c in rec.rig.cameras}
-    trunk_only = FitConfig(published_swivel_search_deg=0.0)
+    trunk_only = FitConfig(published_swivel_search_deg=0.0, published_arm_search_deg=0.0)
     on = BodyTracker(rec.rig, FusionConfig(fps=rec.fps, fit=trunk_only))
     off = BodyTracker(rec.rig, FusionConfig(fps=rec.fps, fit=replace(trunk_only, refine_trunk=False)))
     full = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
