@@ -318,7 +318,7 @@ class BodyFitter:
         (3, 3) and the previous ``swivel`` (4,) radians; ``targets`` None = limits only.
         The pan is searched within +-``pan_search_deg`` in steps of ``pan_step_deg``, then
         refined ``pan_refine`` times; each limb's swivel within +-``swivel_search_deg`` in steps of
-        ``swivel_step_deg`` (defaults: the config's; 180: all round), of the limbs that
+        ``swivel_step_deg`` (defaults: the config's; a search of 180 deg goes all round), of the limbs that
         ``swivel_limbs`` (4 bools: arm_l, arm_r, leg_l, leg_r; default all) names. ``feet`` (6, C, N_FOOT_COLS): the
         measured shoe axes of ``targets``' cameras labelled like ``cues``
         (``foot_axis.foot_axes``); used with ``targets`` only (they carry the projection).

@@ -118,7 +118,7 @@ class PoseSolver:
         if not np.isfinite(full).all():
             return None
         fit = self.config.fit
-        sw = np.zeros(4) if swivel is None else swivel
+        sw = swivel
         if self._swivel_fitter is not None:
             sw = self._swivel_fitter.fit(full, axes, sw, targets, pan_search_deg=0.0, pan_refine=0,
                                          swivel_limbs=_LEGS).swivel

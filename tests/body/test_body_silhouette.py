@@ -7,7 +7,7 @@ from mocap_rt.body import silhouette as S
 from mocap_rt.body.analytic import body_axes
 from mocap_rt.body.estimate import bone_lengths_from_joints
 from mocap_rt.body import fit as Fm
-from mocap_rt.body.fit import BodyFitter
+from mocap_rt.body.fit import BodyFitter, FitConfig
 from mocap_rt.body.kinematics import forward_kinematics
 from mocap_rt.body.skeleton import J, BoneLengths, body_model
 from mocap_rt.cues import SILHOUETTE_MAX_BYTES, CompactSilhouette
@@ -251,11 +251,9 @@ def test_a_search_of_chosen_limbs_is_the_exhaustive_best_and_keeps_the_others(wa
     asks, ``fusion.solver``): the searched limbs, one after the other, end at the candidate whose
     whole pose scores least (the start included), each judged with the earlier limbs at their
     best; the limbs not searched keep their swivels exactly."""
-    from dataclasses import replace
     rig, frames = rendered
     lengths = bone_lengths_from_joints(walk.joints)
-    fitter = BodyFitter(body_model(lengths, "paper"))
-    fitter.config = replace(fitter.config, swivel_prior_cost=0.0, swivel_change_cost=0.0)
+    fitter = BodyFitter(body_model(lengths, "paper"), config=FitConfig(swivel_prior_cost=0.0, swivel_change_cost=0.0))
     offsets = 30.0 * np.arange(-5, 7)
     offsets = offsets[offsets != 0]                     # all round: -180 is 180
     moved = []
