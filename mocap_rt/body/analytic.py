@@ -217,20 +217,26 @@ def _angles_from_frames(parents, rest_local, dof, R, out):
     F = np.empty((3, 3))
     M = np.empty((3, 3))
     for j in range(parents.shape[0]):
-        p = parents[j]
-        if p < 0:
-            F[:, :] = rest_local[j]
-        else:
-            for a in range(3):
-                for b in range(3):
-                    F[a, b] = R[p, a, 0] * rest_local[j, 0, b] + R[p, a, 1] * rest_local[j, 1, b] \
-                        + R[p, a, 2] * rest_local[j, 2, b]
+        _angle_from_frames(parents, rest_local, dof, R, out, j, F, M)
+
+
+@njit(cache=True, nogil=True)
+def _angle_from_frames(parents, rest_local, dof, R, out, j, F, M):
+    """``_angles_from_frames`` for joint j alone; F, M (3, 3) scratch."""
+    p = parents[j]
+    if p < 0:
+        F[:, :] = rest_local[j]
+    else:
         for a in range(3):
             for b in range(3):
-                M[a, b] = F[0, a] * R[j, 0, b] + F[1, a] * R[j, 1, b] + F[2, a] * R[j, 2, b]
-        ang = euler_xyz_from_matrix(M)
-        for k in range(3):
-            out[j, k] = ang[k] if dof[j, k] else 0.0
+                F[a, b] = R[p, a, 0] * rest_local[j, 0, b] + R[p, a, 1] * rest_local[j, 1, b] \
+                    + R[p, a, 2] * rest_local[j, 2, b]
+    for a in range(3):
+        for b in range(3):
+            M[a, b] = F[0, a] * R[j, 0, b] + F[1, a] * R[j, 1, b] + F[2, a] * R[j, 2, b]
+    ang = euler_xyz_from_matrix(M)
+    for k in range(3):
+        out[j, k] = ang[k] if dof[j, k] else 0.0
 
 
 _LIMB_JOINTS = np.array([[J[f"{n}_{s}"] for n in ("shoulder", "elbow", "wrist", "hand", "hip", "knee", "ankle", "foot")]

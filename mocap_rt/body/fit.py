@@ -42,9 +42,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from mocap_rt.body.analytic import _LIMB_JOINTS, NO_VIEWS, AnalyticConfig, _analytic, _angles_from_frames, limb_args
+from mocap_rt.body.analytic import (_LIMB_JOINTS, NO_VIEWS, AnalyticConfig, _analytic, _angle_from_frames,
+                                    _angles_from_frames, limb_args)
 from mocap_rt.body.foot_axis import FOOT_CUES, M2_TO_CM2, N_FOOT_COLS, foot_axis_cost
-from mocap_rt.body.kinematics import fk_kernel
+from mocap_rt.body.kinematics import fk_joint, fk_kernel
 from mocap_rt.body.limb_geometry import _cross, _frame, _rot_about, joint_violation
 from mocap_rt.body.silhouette import CAPSULE_RADII_M, N_CAPSULES, SWIVEL_CAPSULES, SWIVEL_OTHER_CAPSULES, \
     SilhouetteTargets, add_capsules, body_capsules, capsules_cost, new_partial, partial_cost, pose_points, reset_partial
@@ -96,7 +97,7 @@ class FitConfig:
 @njit(cache=True, nogil=True)
 def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
               lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w_sil, w_foot, R, ang, pos,
-              rot, points, A, B, limb=-1, part=_NO_PARTIAL, work=_NO_PARTIAL):
+              rot, points, A, B, jv, limb=-1, part=_NO_PARTIAL, work=_NO_PARTIAL):
     """(limit violation degrees, silhouette cost cm^2, foot-axis cost cm^2) of the analytic pose
     for ``axes``, ``swivel``; a term whose weight is 0 is not computed (0). With a ``limb``
     (0-3, the swivel slot) only that limb is posed anew (R holds the rest of the pose, ``_pose``)
@@ -105,7 +106,7 @@ def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joint
     limb's swivel pays (``_fit``)."""
     viol = _pose(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local,
                  dof, lo, hi, foot_pitch, (P, f, grid, dt, dt_off), w_sil * M2_TO_CM2, w_sil > 0.0 or w_foot > 0.0,
-                 R, ang, pos, rot, points, A, B, limb)
+                 R, ang, pos, rot, points, A, B, jv, limb)
     sil = 0.0
     foot = 0.0
     if w_sil > 0.0:
@@ -122,18 +123,35 @@ def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joint
 
 @njit(cache=True, nogil=True)
 def _pose(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof, lo,
-          hi, foot_pitch, views, w_elbow, capsules, R, ang, pos, rot, points, A, B, limb=-1):
-    """The analytic pose for ``axes``, ``swivel`` in R, ang and, with ``capsules``, its joints,
-    body points and capsules (pos, rot, points, A, B); returns its limit violation (degrees).
-    With a ``limb`` (0-3) only that limb's frames are written anew (``_analytic``): R must hold
-    the rest of the pose."""
+          hi, foot_pitch, views, w_elbow, capsules, R, ang, pos, rot, points, A, B, jv, limb=-1):
+    """The analytic pose for ``axes``, ``swivel`` in R, ang, jv (each joint's limit violation,
+    radians) and, with ``capsules``, its joints, body points and capsules (pos, rot, points, A,
+    B); returns its limit violation (degrees). With a ``limb`` (0-3) only that limb's frames,
+    angles, violations and joints are written anew (``_analytic``): R, ang, jv, pos and rot must
+    hold the rest of the pose (the last pose with ``capsules``, for pos and rot)."""
     pelvis = _analytic(cues, axes, lengths, poles, arm_lim, foot_rest, limb_joints, swivel, R, views, w_elbow, limb)
-    _angles_from_frames(parents, rest_local, dof, R, ang)
+    # with a limb, its four joints (shoulder to hand, or hip to foot; parents first): the others'
+    # frames, hence their angles, violations and joints, are unchanged
+    moved = limb_joints[limb % 2, 0:4] if limb < 2 else limb_joints[limb % 2, 4:8]
+    F = np.empty((3, 3))
+    M = np.empty((3, 3))
+    if limb < 0:
+        _angles_from_frames(parents, rest_local, dof, R, ang)
+        for j in range(1, parents.shape[0]):
+            jv[j] = joint_violation(ang, lo, hi, dof, j)
+    else:
+        for j in moved:
+            _angle_from_frames(parents, rest_local, dof, R, ang, j, F, M)
+            jv[j] = joint_violation(ang, lo, hi, dof, j)
     viol = 0.0
     for j in range(1, parents.shape[0]):
-        viol += joint_violation(ang, lo, hi, dof, j)
+        viol += jv[j]
     if capsules:
-        fk_kernel(parents, offsets, rest_local, pelvis, ang, pos, rot)
+        if limb < 0:
+            fk_kernel(parents, offsets, rest_local, pelvis, ang, pos, rot)
+        else:
+            for j in moved:
+                fk_joint(parents, offsets, rest_local, ang, pos, rot, j, M)
         pose_points(pos, rot, foot_pitch, points)
         body_capsules(points, A, B)
     return np.degrees(viol)
@@ -141,9 +159,9 @@ def _pose(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, p
 
 @njit(cache=True, nogil=True)
 def _scratch(nj):
-    """``_evaluate``'s work arrays for a body of nj joints: R, ang, pos, rot, points, A, B."""
+    """``_evaluate``'s work arrays for a body of nj joints: R, ang, pos, rot, points, A, B, jv."""
     return (np.empty((nj, 3, 3)), np.empty((nj, 3)), np.empty((nj, 3)), np.empty((nj, 3, 3)),
-            np.empty((len(POINT_NAMES), 3)), np.empty((N_CAPSULES, 3)), np.empty((N_CAPSULES, 3)))
+            np.empty((len(POINT_NAMES), 3)), np.empty((N_CAPSULES, 3)), np.empty((N_CAPSULES, 3)), np.zeros(nj))
 
 
 @njit(cache=True, nogil=True)
@@ -152,7 +170,7 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
          sw_limbs, out_axes, out_swivel, out_terms):
     """Coordinate search (see the module doc); writes the best axes (3, 3), swivel (4,)
     and terms (total, violation, silhouette, foot axis) into the ``out_*`` arrays."""
-    R, ang, pos, rot, points, A, B = _scratch(parents.shape[0])
+    R, ang, pos, rot, points, A, B, jv = _scratch(parents.shape[0])
     axc = np.empty((3, 3))
     up = axes0[:, 2].copy()
     right0 = axes0[:, 0].copy()
@@ -178,7 +196,7 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
                 axc[i, 0], axc[i, 1], axc[i, 2] = r[i], fw[i], up[i]
             viol, sil, foot = _evaluate(cues, axc, sw, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
                                         offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
-                                        outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B)
+                                        outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B, jv)
             cost = viol + w_sil * sil + w_foot * foot + c_pan * abs(np.degrees(a)) + base
             if cost < best:
                 best = cost
@@ -200,8 +218,8 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
             continue
         # the best pose so far: the pan's whole, then only the limb just searched comes back to its best
         _pose(cues, out_axes, out_swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets,
-              rest_local, dof, lo, hi, foot_pitch, (P, f, grid, dt, dt_off), w_sil * M2_TO_CM2, w_sil > 0.0, R, ang,
-              pos, rot, points, A, B, last)
+              rest_local, dof, lo, hi, foot_pitch, (P, f, grid, dt, dt_off), w_sil * M2_TO_CM2,
+              w_sil > 0.0 or w_foot > 0.0, R, ang, pos, rot, points, A, B, jv, last)
         last = limb
         if w_sil > 0.0:
             reset_partial(part)
@@ -211,7 +229,7 @@ def _fit(cues, axes0, swivel_prev, lengths, poles, arm_lim, foot_rest, limb_join
             sw[limb] = swivel_prev[limb] + sw_offsets[k]
             viol, sil, foot = _evaluate(cues, out_axes, sw, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
                                         offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
-                                        outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B,
+                                        outline, n_outline, feet, w_sil, w_foot, R, ang, pos, rot, points, A, B, jv,
                                         limb, part, work)
             cost = viol + w_sil * sil + w_foot * foot + pan_cost
             for i in range(4):
@@ -232,7 +250,7 @@ def _fit_torso(cues, axes0, swivel, lengths, poles, arm_lim, foot_rest, limb_joi
     moved; writes the best torso point (3,) and axes (3, 3) and returns its cost. With the trunk
     hung from the head (``lengths[10]``, ``AnalyticConfig.trunk_from_head``) a move up would
     change nothing: it moves forward then right, tilting the trunk about the head."""
-    R, ang, pos, rot, points, A, B = _scratch(parents.shape[0])
+    R, ang, pos, rot, points, A, B, jv = _scratch(parents.shape[0])
     c = cues.copy()
     axc = np.empty((3, 3))
     torso0 = cues[C_TORSO].copy()
@@ -255,7 +273,7 @@ def _fit_torso(cues, axes0, swivel, lengths, poles, arm_lim, foot_rest, limb_joi
                 _frame(cues[C_HEAD] - c[C_TORSO], right0, axc)     # (right, forward, up): Z up to the head
                 viol, sil, _ = _evaluate(c, axc, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents,
                                          offsets, rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off,
-                                         outline, n_outline, _NO_FEET, w[0], 0.0, R, ang, pos, rot, points, A, B)
+                                         outline, n_outline, _NO_FEET, w[0], 0.0, R, ang, pos, rot, points, A, B, jv)
                 cost = viol + w[0] * sil + w[1] * 100.0 * np.sqrt(trial[0] ** 2 + trial[1] ** 2)
                 if cost < best:
                     best = cost
@@ -270,10 +288,10 @@ def _pose_cost(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_join
                lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, w_sil):
     """Limit violation + ``w_sil`` * silhouette cost of one analytic pose (``_fit_torso``'s terms
     without the shift)."""
-    R, ang, pos, rot, points, A, B = _scratch(parents.shape[0])
+    R, ang, pos, rot, points, A, B, jv = _scratch(parents.shape[0])
     viol, sil, _ = _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets,
                              rest_local, dof, lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline,
-                             _NO_FEET, w_sil, 0.0, R, ang, pos, rot, points, A, B)
+                             _NO_FEET, w_sil, 0.0, R, ang, pos, rot, points, A, B, jv)
     return viol + w_sil * sil
 
 

@@ -63,17 +63,22 @@ def fk_kernel(parents, offsets, rest_local, root_pos, angles, pos, rot):
     """FK into pos (J, 3) / rot (J, 3, 3) of the body arrays (``BodyModel`` fields); see module doc."""
     M = np.empty((3, 3))
     for j in range(parents.shape[0]):
-        E = euler_xyz_matrix(angles[j, 0], angles[j, 1], angles[j, 2])
-        p = parents[j]
-        if p < 0:
-            mul3(rest_local[j], E, rot[j])
+        if parents[j] < 0:
+            mul3(rest_local[j], euler_xyz_matrix(angles[j, 0], angles[j, 1], angles[j, 2]), rot[j])
             pos[j] = root_pos
         else:
-            mul3(rest_local[j], E, M)
-            mul3(rot[p], M, rot[j])
-            for a in range(3):
-                pos[j, a] = pos[p, a] + rot[p, a, 0] * offsets[j, 0] + rot[p, a, 1] * offsets[j, 1] \
-                    + rot[p, a, 2] * offsets[j, 2]
+            fk_joint(parents, offsets, rest_local, angles, pos, rot, j, M)
+
+
+@njit(cache=True, nogil=True)
+def fk_joint(parents, offsets, rest_local, angles, pos, rot, j, M):
+    """``fk_kernel``'s step for joint j (not the root), its parent's pos and rot in place; M (3, 3) scratch."""
+    p = parents[j]
+    mul3(rest_local[j], euler_xyz_matrix(angles[j, 0], angles[j, 1], angles[j, 2]), M)
+    mul3(rot[p], M, rot[j])
+    for a in range(3):
+        pos[j, a] = pos[p, a] + rot[p, a, 0] * offsets[j, 0] + rot[p, a, 1] * offsets[j, 1] \
+            + rot[p, a, 2] * offsets[j, 2]
 
 
 def forward_kinematics(model: BodyModel, root_pos: np.ndarray, angles: np.ndarray,

@@ -219,9 +219,10 @@ def test_the_cost_summed_in_parts_is_the_whole(walk, rendered):
 
 
 def test_a_swivel_moves_only_its_limb(walk, rendered):
-    """The swivel search poses only the moved limb anew and scores only its capsules on top of the
-    others' (``fit._evaluate`` with a limb): for every limb and swivel, the same violation and
-    silhouette terms as posing and scoring the whole body."""
+    """The swivel search poses only the moved limb anew (its frames, angles, limit violations and
+    joints) and scores only its capsules on top of the others' (``fit._evaluate`` with a limb): for
+    every limb and swivel, the same violation and silhouette terms as posing and scoring the whole
+    body."""
     rig, frames = rendered
     lengths = bone_lengths_from_joints(walk.joints)
     fitter = BodyFitter(body_model(lengths, "paper"))
@@ -235,7 +236,8 @@ def test_a_swivel_moves_only_its_limb(walk, rendered):
         for limb in range(4):
             Fm._pose(X, axes, base, *args[:-1], sil[:5], 1e4, True, *scratch)      # R, A, B of the base pose
             part = S.new_partial(len(sil[0]), sil[5].shape[1])
-            S.add_capsules(scratch[-2], scratch[-1], S.CAPSULE_RADII_M, S.SWIVEL_OTHER_CAPSULES[limb], *sil, part)
+            A, B = scratch[5], scratch[6]
+            S.add_capsules(A, B, S.CAPSULE_RADII_M, S.SWIVEL_OTHER_CAPSULES[limb], *sil, part)
             for turn in (-45.0, 30.0, 90.0):
                 sw = base.copy()
                 sw[limb] += np.radians(turn)
