@@ -10,7 +10,9 @@ Two loops per clip:
 
 * ``closed``: the loop of ``mocap-rt process`` (``process_recording``): every frame's
   perception gets fusion's 3D prediction projected into each camera (Z-buffer visibility);
-  the 2D cues fusion was given are scored;
+  the 2D cues fusion was given are scored, with the torso as ``mocap-rt perceive`` writes it:
+  the fused body's torso point projected (``fusion.offline.with_fused_torso``); the torso each
+  camera measured (fusion's input) is scored beside it (``torso_measured``);
 * ``open``: each camera alone on its own 2D tracks (``perceive_recording`` without fusion).
 
 Scoring (``mocap_rt.perception.evaluate``), per cue over all cameras and frames where the
@@ -54,7 +56,8 @@ def hard_clips(which: str = "default") -> list:
 
 
 def run_loops(rec_dir, loops=("closed", "open")) -> dict[str, np.ndarray]:
-    """(C, F, 6, 2) 2D cues of the recording per loop."""
+    """(C, F, 6, 2) 2D cues of the recording per loop (and "closed_measured": the closed loop's
+    cues with the torso each camera measured)."""
     from mocap_rt.cli.perceive import perceive_recording
     from mocap_rt.fusion.offline import process_recording
     from mocap_rt.io.recording import Recording
@@ -62,8 +65,12 @@ def run_loops(rec_dir, loops=("closed", "open")) -> dict[str, np.ndarray]:
 
     out = {}
     if "closed" in loops:
-        with tempfile.TemporaryDirectory() as tmp:
-            out["closed"] = process_recording(rec_dir, tmp, progress=False).camera_xy
+        from mocap_rt.fusion.offline import with_fused_torso
+
+        with tempfile.TemporaryDirectory() as tmp, Recording(rec_dir) as rec:
+            p = process_recording(rec_dir, tmp, progress=False)
+            out["closed_measured"] = p.camera_xy
+            out["closed"] = with_fused_torso(p.camera_xy, rec.rig.cameras, p.joints, p.joint_valid)
     if "open" in loops:
         with Recording(rec_dir) as rec:
             cfg = config_for_source(PerceptionConfig(), rec.source)
@@ -129,10 +136,10 @@ def _finite_median(vals: list[float]) -> float:
     return float(np.median(vals)) if vals else float("nan")
 
 
-def _pooled(rows: list[dict]) -> dict:
+def _pooled(rows: list[dict], cues=CUE_NAMES) -> dict:
     """Per cue over clips: median of medians, max p95, summed lost frames, longest loss."""
     out = {}
-    for n in CUE_NAMES:
+    for n in cues:
         out[n] = {"median_px": float(np.nanmedian([r[n]["median_px"] for r in rows])),
                   "p95_px": float(np.nanmax([r[n]["p95_px"] for r in rows])),
                   "lost_frames": int(sum(r[n]["lost_frames"] for r in rows)),
@@ -141,6 +148,8 @@ def _pooled(rows: list[dict]) -> dict:
                   "longest_seen_loss_s": float(max(r[n]["longest_seen_loss_s"] for r in rows)),
                   "reacq_median_s": _finite_median([r[n]["reacq_median_s"] for r in rows]),
                   **{k: _finite_median([r[n].get(k, np.nan) for r in rows]) for k in ("along_px", "across_px")}}
+    if all("torso_measured" in r for r in rows):
+        out["torso_measured"] = _pooled([{"torso": r["torso_measured"]} for r in rows], ("torso",))["torso"]
     return out
 
 
@@ -171,6 +180,8 @@ def main(argv: list[str] | None = None) -> int:
         xy = run_loops(rec, loops)                 # accuracy only: no timing lock needed
         for loop in loops:
             results[loop][c.name] = score(rec, xy[loop])
+            if loop == "closed":
+                results[loop][c.name]["torso_measured"] = score(rec, xy["closed_measured"])["torso"]
             print(_row(c.name, loop, results[loop][c.name]), flush=True)
     print(f"\n== all clips ({len(clips)}, {time.perf_counter() - t0:.0f} s): per cue median of medians / worst p95, "
           "lost frames, longest loss ==")
@@ -182,6 +193,11 @@ def main(argv: list[str] | None = None) -> int:
                                for n in CUE_NAMES))
         print("   (longest: from a lost frame to the next frame the cue is back, the frames it was hidden in "
               "between included; seen: those frames left out)")
+        if "torso_measured" in pooled:
+            t = pooled["torso_measured"]
+            print(f"   torso: the fused body's torso point projected (what `mocap-rt perceive` writes); as the cameras "
+                  f"measured it (fusion's input): {t['median_px']:.1f}/{t['p95_px']:.1f} px, lost "
+                  f"{t['lost_frames']}/{t['visible_frames']}, longest {t['longest_loss_s']:.2f} s")
         print("   error along / across the limb, px (median of the clips' medians; along > 0: away from the "
               "joint the blob adjoins, where collar, sleeve or trouser leg covers it): " + ", ".join(
                   f"{n} {pooled[n]['along_px']:+.2f} / {pooled[n]['across_px']:+.2f}" for n in CUE_NAMES

@@ -6,8 +6,14 @@ prediction, projected into every camera with Z-buffer visibility (seed digest A.
 guides the next frame's perception. ``--open-loop`` runs each camera on its own 2D tracks
 (no fusion; also what a recording with fewer than two of the chosen cameras gets).
 
+In the closed loop the torso cue written is the fused body's torso point (the pelvis-neck
+midpoint) projected into each camera that found a torso (``fusion.offline.with_fused_torso``):
+closer to the truth and never lost for long, where the measured one is the trunk's visible
+centre; the measured one is kept as ``torso_measured_2d``.
+
 The npz holds ``camera_names`` (C,), ``cue_names`` (6,), ``frames`` (F,), ``cues_2d``
-(C, F, 6, 2) pixels (NaN = not found), ``confidence`` (C, F, 6), ``cov`` (C, F, 6, 2, 2),
+(C, F, 6, 2) pixels (NaN = not found), ``torso_measured_2d`` (C, F, 2) the torso as each camera
+measured it (in the open loop the same as ``cues_2d``'s), ``confidence`` (C, F, 6), ``cov`` (C, F, 6, 2, 2),
 ``legs_2d`` (C, F, 2, 2) pixels where the legs meet the left and right shoe blobs (the heel
 ends, ``perception.leg_attach``; NaN = not measured), ``bbox`` (C, F, 4), ``ms_per_frame``
 (C, F) perception milliseconds and ``closed_loop`` ().
@@ -51,7 +57,7 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
     import numpy as np
     from tqdm import tqdm
 
-    from mocap_rt.names import CUE_NAMES, N_CUES
+    from mocap_rt.names import C_TORSO, CUE_NAMES, N_CUES
     from mocap_rt.perception.pipeline import CameraPerceiver
 
     n = rec.n_frames if max_frames <= 0 else min(rec.n_frames, max_frames)
@@ -86,17 +92,21 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
 
     closed_loop = closed_loop and C >= 2
     if closed_loop:
-        from mocap_rt.fusion.offline import run_tracker
+        from mocap_rt.fusion.offline import run_tracker, with_fused_torso
         from mocap_rt.fusion.config import FusionConfig
         from mocap_rt.fusion.tracker import BodyTracker
 
         fc = replace(fusion_config or FusionConfig(), fps=float(rec.fps))
-        run_tracker(BodyTracker(rec.rig, fc), frame_cues, n, progress)
+        results = run_tracker(BodyTracker(rec.rig, fc), frame_cues, n, progress)
+        measured = cues[:, :, C_TORSO].copy()
+        cues = with_fused_torso(cues, [rec.rig[name] for name in cameras], np.array([r.joints for r in results]),
+                                np.array([r.joint_valid for r in results]))
     else:
         for i in tqdm(range(n), disable=not progress, unit="frame", desc="perceive"):
             frame_cues(i, None)
+        measured = cues[:, :, C_TORSO].copy()
     return {"camera_names": np.array(cameras), "cue_names": np.array(CUE_NAMES), "frames": frames.copy(),
-            "cues_2d": cues, "confidence": conf, "cov": cov, "legs_2d": legs, "bbox": bbox, "ms_per_frame": ms,
+            "cues_2d": cues, "torso_measured_2d": measured, "confidence": conf, "cov": cov, "legs_2d": legs, "bbox": bbox, "ms_per_frame": ms,
             "closed_loop": np.array(closed_loop)}
 
 

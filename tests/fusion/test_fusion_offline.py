@@ -177,3 +177,40 @@ def test_a_mirror_that_follows_a_mirror_reaches_back_as_far():
 
     assert run({20: (mirror, 2), 30: (mirror, 3)}) == [(19, mirror)] + [(f, mirror) for f in range(19, 30)]
     assert run({20: (mirror, 2), 25: (feet, 1), 30: (mirror, 3)}) == [(19, mirror), (28, mirror), (29, mirror)]
+
+
+def test_the_torso_written_is_the_fused_bodys_midpoint_projected_where_a_camera_found_one():
+    """``with_fused_torso`` (what ``mocap-rt perceive``'s closed loop writes, issue 12 item 4):
+    the pelvis-neck midpoint of the fused joints projected by OpenCV (the oracle) into each
+    camera that measured a torso; the other cues, a camera that found none, and a frame
+    without a pose keep what was measured."""
+    import cv2
+
+    from mocap_rt.fusion.offline import with_fused_torso
+    from mocap_rt.geometry.camera import Camera, look_at
+    from mocap_rt.names import C_TORSO
+
+    rng = np.random.default_rng(4)
+    K = np.array([[520.0, 0, 322], [0, 515, 238], [0, 0, 1]])
+    dist = np.array([-0.12, 0.05, 0.001, -0.002, 0.0])
+    cams = [Camera(f"c{i}", (640, 480), K, dist, *look_at(eye, [0.0, 0.0, 1.0]))
+            for i, eye in enumerate(([4.0, 0.5, 1.6], [-0.6, 3.8, 2.1], [-3.5, -2.0, 1.2]))]
+    F = 5
+    joints = np.array([0.0, 0.0, 1.0]) + rng.normal(0.0, 0.3, (F, len(JOINT_NAMES), 3))
+    valid = np.ones((F, len(JOINT_NAMES)), bool)
+    valid[3, JOINT_NAMES.index("neck")] = False                  # no pose at frame 3
+    xy = rng.uniform(0.0, 640.0, (len(cams), F, 6, 2))
+    xy[1, 2, C_TORSO] = np.nan                                   # camera 1 found no torso at frame 2
+    out = with_fused_torso(xy, cams, joints, valid)
+    mid = 0.5 * (joints[:, JOINT_NAMES.index("pelvis")] + joints[:, JOINT_NAMES.index("neck")])
+    for c, cam in enumerate(cams):
+        oracle = cv2.projectPoints(mid, cv2.Rodrigues(cam.R)[0], cam.t, K, dist)[0][:, 0]
+        for f in range(F):
+            if (c, f) == (1, 2):
+                assert np.isnan(out[c, f, C_TORSO]).all()
+            elif f == 3:
+                np.testing.assert_array_equal(out[c, f, C_TORSO], xy[c, f, C_TORSO])
+            else:
+                np.testing.assert_allclose(out[c, f, C_TORSO], oracle[f], atol=1e-6)
+    others = [k for k in range(6) if k != C_TORSO]
+    np.testing.assert_array_equal(out[:, :, others], xy[:, :, others])
