@@ -91,23 +91,26 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
         return int(frames[i]), out
 
     closed_loop = closed_loop and C >= 2
+    results = None
     if closed_loop:
-        from mocap_rt.fusion.offline import run_tracker, with_fused_torso
         from mocap_rt.fusion.config import FusionConfig
+        from mocap_rt.fusion.offline import run_tracker
         from mocap_rt.fusion.tracker import BodyTracker
 
         fc = replace(fusion_config or FusionConfig(), fps=float(rec.fps))
         results = run_tracker(BodyTracker(rec.rig, fc), frame_cues, n, progress)
-        measured = cues[:, :, C_TORSO].copy()
-        cues = with_fused_torso(cues, [rec.rig[name] for name in cameras], np.array([r.joints for r in results]),
-                                np.array([r.joint_valid for r in results]))
     else:
         for i in tqdm(range(n), disable=not progress, unit="frame", desc="perceive"):
             frame_cues(i, None)
-        measured = cues[:, :, C_TORSO].copy()
+    measured = cues[:, :, C_TORSO].copy()
+    if results is not None:
+        from mocap_rt.fusion.offline import with_fused_torso
+
+        cues = with_fused_torso(cues, [rec.rig[name] for name in cameras], np.array([r.joints for r in results]),
+                                np.array([r.joint_valid for r in results]))
     return {"camera_names": np.array(cameras), "cue_names": np.array(CUE_NAMES), "frames": frames.copy(),
-            "cues_2d": cues, "torso_measured_2d": measured, "confidence": conf, "cov": cov, "legs_2d": legs, "bbox": bbox, "ms_per_frame": ms,
-            "closed_loop": np.array(closed_loop)}
+            "cues_2d": cues, "torso_measured_2d": measured, "confidence": conf, "cov": cov, "legs_2d": legs,
+            "bbox": bbox, "ms_per_frame": ms, "closed_loop": np.array(closed_loop)}
 
 
 def run(args: argparse.Namespace) -> int:
