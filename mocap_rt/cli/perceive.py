@@ -94,7 +94,7 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
     results = None
     if closed_loop:
         from mocap_rt.fusion.config import FusionConfig
-        from mocap_rt.fusion.offline import run_tracker
+        from mocap_rt.fusion.offline import run_tracker, with_fused_torso
         from mocap_rt.fusion.tracker import BodyTracker
 
         fc = replace(fusion_config or FusionConfig(), fps=float(rec.fps))
@@ -104,8 +104,6 @@ def perceive_recording(rec, cameras: list[str], config, max_frames: int = 0, pro
             frame_cues(i, None)
     measured = cues[:, :, C_TORSO].copy()
     if results is not None:
-        from mocap_rt.fusion.offline import with_fused_torso
-
         cues = with_fused_torso(cues, [rec.rig[name] for name in cameras], np.array([r.joints for r in results]),
                                 np.array([r.joint_valid for r in results]))
     return {"camera_names": np.array(cameras), "cue_names": np.array(CUE_NAMES), "frames": frames.copy(),
