@@ -94,6 +94,15 @@ class FitConfig:
             raise ValueError(f"FitConfig.pelvis_twist_prior must be >= 0, got {self.pelvis_twist_prior}")
 
 
+def _search_offsets(search_deg: float, step_deg: float) -> np.ndarray:
+    """The offsets (radians, ascending, 0 included) of a search within +-``search_deg`` in steps
+    of ``step_deg`` (none but 0 for a step <= 0); a search of 180 deg or more goes all round once:
+    -180 deg is +180, which is kept."""
+    n = int(search_deg // step_deg) if step_deg > 0 else 0
+    k = np.arange(-n, n + 1)
+    return np.radians(step_deg * k[k * step_deg > -180.0])
+
+
 @njit(cache=True, nogil=True)
 def _evaluate(cues, axes, swivel, lengths, poles, arm_lim, foot_rest, limb_joints, parents, offsets, rest_local, dof,
               lo, hi, foot_pitch, rad, P, f, grid, dt, dt_off, outline, n_outline, feet, w_sil, w_foot, R, ang, pos,
@@ -344,10 +353,7 @@ class BodyFitter:
         c = self.config
         pan_deg = c.pan_search_deg if pan_search_deg is None else pan_search_deg
         step = c.pan_step_deg if pan_step_deg is None else pan_step_deg
-        n_pan = int(pan_deg // step) if step > 0 else 0
-        offsets = np.radians(step * np.arange(-n_pan, n_pan + 1))
-        if pan_deg >= 180.0:                       # the full circle: -180 and 180 are one
-            offsets = offsets[np.abs(offsets) < np.pi - 1e-9]
+        offsets = _search_offsets(pan_deg, step)
         out_axes, out_sw, terms = np.empty((3, 3)), np.zeros(4), np.zeros(4)
         have = targets is not None and targets.n_views > 0
         use_feet = targets is not None and feet is not None and c.foot_axis_weight > 0
@@ -360,9 +366,8 @@ class BodyFitter:
                       c.swivel_prior_cost, c.foot_axis_weight if use_feet else 0.0])
         sw_deg = c.swivel_search_deg if swivel_search_deg is None else swivel_search_deg
         sw_step = c.swivel_step_deg if swivel_step_deg is None else swivel_step_deg
-        n_sw = int(sw_deg // sw_step) if (search_swivel and sw_step > 0) else 0
-        k = np.arange(-n_sw, n_sw + 1)
-        sw_offsets = np.radians(sw_step) * k[(k != 0) & (k * sw_step > -180.0)]      # -180 deg is 180
+        sw_offsets = _search_offsets(sw_deg, sw_step if search_swivel else 0.0)
+        sw_offsets = sw_offsets[sw_offsets != 0.0]
         sw_limbs = np.ones(4, np.bool_) if swivel_limbs is None else np.asarray(swivel_limbs, np.bool_)
         sw0 = np.zeros(4) if swivel is None else np.asarray(swivel, np.float64)
         model_args = self._model_args if (have and measured_elbows) else self._fixed_args

@@ -197,6 +197,16 @@ def test_fit_brings_a_wrong_heading_back(walk, rendered):
         assert res.silhouette_cm2 < 5.0
 
 
+def test_a_search_all_round_scores_the_half_turn_once():
+    """A search of 180 deg goes all round once: -180 is +180, which is scored; smaller ones
+    are symmetric; a step of 0 searches nothing but the start."""
+    assert np.allclose(np.degrees(Fm._search_offsets(30.0, 15.0)), [-30, -15, 0, 15, 30])
+    full = np.degrees(Fm._search_offsets(180.0, 30.0))
+    assert np.allclose(full, np.arange(-150, 181, 30))
+    assert len(np.unique(np.round(full % 360, 6))) == len(full) == 12
+    assert np.allclose(Fm._search_offsets(180.0, 0.0), [0.0])
+
+
 def test_the_cost_summed_in_parts_is_the_whole(walk, rendered):
     """``add_capsules`` over any split of the capsules, then ``partial_cost``, is ``capsules_cost``
     (what the swivel search sums once per limb and adds each candidate's limb to)."""
