@@ -35,6 +35,9 @@ class FusionConfig:
                                            # triangulate_with_prior, mocap_rt.geometry); 0 = off
     fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
     duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
+    hand_on_head_m: float = 0.20           # a hand predicted this near the head (beyond duplicate_m) and moving
+    hand_rest_mps: float = 0.5             # ... slower than this rests on it: kept where a view finds it on the
+                                           # head's blob (views.hands_on_head)
     use_filtered: bool = False             # IK on filtered (True) or measured (False) cues
     ik: str = "analytic"                   # "analytic" or "ccd" (analytic + CCD refinement)
     bone_lengths: BoneLengths | None = None

@@ -64,7 +64,7 @@ from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityS
                                       feet_together, feet_told_apart, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
-from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair,
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair, hands_on_head,
                                    head_on_trunk, near_parallel_from_prior, predict_views, reject_duplicates,
                                    triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
@@ -84,6 +84,7 @@ PRIOR_WEIGHT = 0.05
 _NO_CUES = np.zeros(N_CUES, dtype=bool)
 _HIPS = [J["hip_l"], J["hip_r"]]
 _FEET_ALT = ALTERNATIVES.index("feet")
+_HANDS_ALT = ALTERNATIVES.index("hands")
 _MIRROR_ALT = ALTERNATIVES.index("mirror")
 
 
@@ -245,14 +246,17 @@ class BodyTracker:
         self._poll_fitted()
         timings: dict[str, float] = {}
         t_s = frame / self.config.fps
-        uv, w = cue_pixels(cues, self._index, len(self.cameras), self.config.min_confidence)
+        pred = self.filter.predict_at(t_s)          # (6, 3), NaN for tracks not alive
+        cfg = self.config
+        resting = hands_on_head(self._proj, pred, np.linalg.norm(self.filter.vel, axis=1), cfg.duplicate_m,
+                                cfg.hand_on_head_m, cfg.hand_rest_mps)
+        uv, w, kept = cue_pixels(cues, self._index, len(self.cameras), cfg.min_confidence, resting)
         targets = (SilhouetteTargets.from_cues(self.cameras, cues, self._sil_projection)
                    if self.config.silhouettes else None)
         feet = (foot_axes(cues, self._names, w) if targets is not None and self.config.fit.foot_axis_weight > 0
                 else None)
         ts = time.perf_counter()
         timings["silhouettes"] = (ts - t0) * 1e3
-        pred = self.filter.predict_at(t_s)          # (6, 3), NaN for tracks not alive
         if self.config.fix_left_right:
             ref = pred if self.filter.alive.any() else None
             uv0, (uv, w, n_fixed) = uv, fix_left_right(self._tri, self._proj, uv, w, ref)
@@ -265,7 +269,7 @@ class BodyTracker:
         t_id = time.perf_counter()
         timings["triangulate"] = (t_id - ts) * 1e3
         right_before = self._right          # the heading reference this frame's fit starts from
-        scored = self._identity_input(X, valid, pred, targets, feet)
+        scored = self._identity_input(X, valid, pred, targets, feet, bool((used & kept).any()))
         t1 = time.perf_counter()
         timings["identify"] = (t1 - t_id) * 1e3
         accepted = self.filter.update(t_s, np.where(valid[:, None], X, np.nan))
@@ -302,11 +306,12 @@ class BodyTracker:
                             root, angles, pan, pair, cues_ik, axes, joint_valid, self._swivel.copy(), targets)
 
     def _identity_input(self, X: np.ndarray, valid: np.ndarray, pred: np.ndarray, targets: SilhouetteTargets | None,
-                        feet: np.ndarray | None) -> tuple | None:
+                        feet: np.ndarray | None, hands_on_head: bool = False) -> tuple | None:
         """What the identity scores, taken before the frame changes the state: the cues (6, 3)
         (measured, else the filter's prediction ``pred`` (6, 3)), the previous frame's body axes,
-        the silhouettes, the shoe measurements ``feet`` and the previous pose's hips; None when
-        there is nothing to score.
+        the silhouettes, the shoe measurements ``feet``, the previous pose's hips and
+        ``hands_on_head`` (a hand was measured from a view that found it on the head's blob,
+        ``views.hands_on_head``); None when there is nothing to score.
         A body that (re)starts acquires afresh."""
         if not self.filter.alive[[C_HEAD, C_TORSO]].all():
             self.identity.reset()        # the body (re)starts: acquire afresh, heading unknown
@@ -317,7 +322,7 @@ class BodyTracker:
         cues = np.where(valid[:, None], X, pred)
         if not np.isfinite(cues[[C_HEAD, C_TORSO]]).all():
             return None
-        return cues, self._axes, targets, feet, self._hips
+        return cues, self._axes, targets, feet, self._hips, hands_on_head
 
     def identify_frame(self, result: FusionResult) -> FusionResult:
         """Stage 5 of the frame ``fit_frame`` just fitted (``result``, whose timings it adds its
@@ -331,7 +336,7 @@ class BodyTracker:
         pending, self._pending = self._pending, None
         if pending is not None:
             scored, cues_ik, right_before, (X, axes) = pending
-            _, _, targets, feet, _ = scored
+            _, _, targets, feet, _, _ = scored
             k = self._score_identity(*scored)
             X = X if k < 0 else swap_pairs(X, k)
             if k >= 0 and np.isfinite(cues_ik[[C_HEAD, C_TORSO]]).all():
@@ -378,11 +383,13 @@ class BodyTracker:
         return replace(out, root_pos=root, angles=angles, joints=joints, bvh_frame=self.published.bvh_row(root, angles),
                        pan_rad=pan_angle(axes), axes=axes, swivel=swivel)
 
-    def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None,
-                        targets: SilhouetteTargets | None, feet: np.ndarray | None, hips: np.ndarray | None) -> int:
+    def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None, targets: SilhouetteTargets | None,
+                        feet: np.ndarray | None, hips: np.ndarray | None, hands_on_head: bool = False) -> int:
         """Score the hypotheses on ``cues`` (``_identity_input``); on a switch relabel the
         filter's tracks, turn the heading for a mirror and reset the limb swivels. Returns the
-        alternative switched to (index into ALTERNATIVES) or -1."""
+        alternative switched to (index into ALTERNATIVES) or -1. With ``hands_on_head`` the
+        alternatives that exchange the hands score as the current labelling: a view that finds
+        a hand on the head's blob cannot tell which arm reached up."""
         cfg = self.config.identity
         acquiring = self.identity.frames < cfg.acquire_frames     # the legs score the facing only then
         no_views = targets is None or targets.n_views == 0     # the limits alone cannot see a mirror
@@ -394,6 +401,8 @@ class BodyTracker:
             costs[1 + _MIRROR_ALT] = np.inf
         if together:
             costs[1 + _FEET_ALT] = costs[0]      # scored as the current labelling (identity module doc)
+        if hands_on_head:
+            costs[[1 + _HANDS_ALT, 1 + _MIRROR_ALT]] = costs[0]
         # legs that pass through each other: a credit to the feet alternative (identity module doc)
         costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(hips, cues)
         k = decide(self.identity, costs, cfg)

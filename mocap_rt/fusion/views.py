@@ -17,7 +17,8 @@
   per view, keep the labelling that agrees with the 3D prediction, or at a cold start
   the combination of per-view labellings that triangulates best.
 * ``cue_pixels`` — the cameras' 2D cues of one frame as per-view arrays, without a hand
-  that a view found on the head's blob.
+  that a view found on the head's blob, unless ``hands_on_head`` says the prediction rests it
+  there.
 * ``predict_views`` — A.4: project the predicted 3D cues into every camera and test
   visibility with a Z-buffer on the distance from the camera centre: a cue is hidden
   when a nearer cue's disc covers its centre, or when it falls outside the image.
@@ -47,12 +48,15 @@ SAME_BLOB_RADII = 1.5
 
 
 def cue_pixels(cues: Mapping[str, CameraCues], index: Mapping[str, int], n_cameras: int,
-               min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
-    """One frame's 2D cues as per-view arrays: pixels (C, 6, 2) (NaN where not measured) and
-    weights (C, 6) (the cues' confidences; 0 where not measured) of the cameras named in
-    ``index`` (name -> row; other cameras are ignored). A cue below ``min_confidence`` is not
-    measured, nor is a hand found within ``SAME_BLOB_RADII`` head-blob radii of the head in
-    a view (the same blob twice)."""
+               min_confidence: float, on_head: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One frame's 2D cues as per-view arrays: pixels (C, 6, 2) (NaN where not measured),
+    weights (C, 6) (the cues' confidences; 0 where not measured) and kept (C, 6) bool, of the
+    cameras named in ``index`` (name -> row; other cameras are ignored). A cue below
+    ``min_confidence`` is not measured, nor is a hand found within ``SAME_BLOB_RADII`` head-blob
+    radii of the head in a view (the same blob twice), unless ``on_head`` (``hands_on_head``'
+    predicted pixels and views) shows that hand resting on the head in the view and the cue lies
+    within one head-blob radius of its predicted pixels: then ``kept`` is True there."""
     uv = np.full((n_cameras, N_CUES, 2), np.nan)
     w = np.zeros((n_cameras, N_CUES))
     head_r = np.zeros(n_cameras)
@@ -65,12 +69,31 @@ def cue_pixels(cues: Mapping[str, CameraCues], index: Mapping[str, int], n_camer
         head_r[c] = cc.area[C_HEAD]
     ok = np.isfinite(uv).all(-1) & (w >= min_confidence) & (w > 0)
     r = np.maximum(MIN_BLOB_RADIUS_PX, np.sqrt(np.maximum(head_r, 0.0) / np.pi))
+    kept = np.zeros((n_cameras, N_CUES), bool)
     for h in (C_HAND_L, C_HAND_R):
         same = ok[:, C_HEAD] & ok[:, h] & (np.linalg.norm(uv[:, h] - uv[:, C_HEAD], axis=1) < SAME_BLOB_RADII * r)
-        ok[same, h] = False
+        if on_head is not None:
+            kept[:, h] = same & on_head[1][:, h] & (np.linalg.norm(uv[:, h] - on_head[0][:, h], axis=1) < r)
+        ok[same & ~kept[:, h], h] = False
     uv[~ok] = np.nan
     w[~ok] = 0.0
-    return uv, w
+    return uv, w, kept
+
+
+def hands_on_head(proj: "RigProjector", pred: np.ndarray, speed: np.ndarray, min_m: float, max_m: float,
+                  max_mps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the prediction ``pred`` (6, 3) (NaN = unknown) shows a hand resting on the head:
+    the predicted pixels (C, 6, 2) and, per view, (C, 6) bool, True for a hand whose centre lies
+    between ``min_m`` and ``max_m`` of the head's (in contact: the cue spheres' radii add up to
+    0.15 m; nearer is inside the head, farther a hand passing in front of the face), whose
+    ``speed`` (6,) m/s is below ``max_mps`` (resting, not swinging past), visible in the view
+    (``predict_views``' Z-buffer) and outside the head's disc there (colour parts a hand from the
+    head only where it sticks out of it). For ``cue_pixels``: such a hand, found on the head's
+    blob in the view, is measured there, not taken for the face reported twice."""
+    xy, vis, rad = predict_views(proj, pred, CUE_RADII_M)
+    d = np.linalg.norm(pred - pred[C_HEAD], axis=1)                                       # NaN: False below
+    outside = np.linalg.norm(xy - xy[:, C_HEAD, None], axis=-1) > rad[:, C_HEAD, None]
+    return xy, vis & ((d >= min_m) & (d <= max_m) & (speed < max_mps))[None, :] & outside
 
 
 class RigProjector:

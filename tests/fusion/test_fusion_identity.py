@@ -259,6 +259,27 @@ def test_a_cold_start_is_identified_after_its_pose(kick_reversed):
     rec.close()
 
 
+
+def test_a_hand_measured_on_the_heads_blob_exchanges_no_hands(kick_reversed):
+    """The cold start of the test above, its first frame's hand measured from a view that found it
+    on the head's blob (``views.hands_on_head``: such a view cannot tell which arm reached up): the
+    frame scores the alternatives that exchange the hands as the current labelling, so it switches
+    nothing; the next frame, measured as usual, switches the hands."""
+    rec, truth, names, widths, tracker, rng = _truth_setup(kick_reversed)
+
+    def cues(f):
+        return _truth_cues(truth, names, widths, f, rng, [(HL, HR)])
+
+    published = tracker.fit_frame(0, cues(0))
+    scored, *rest = tracker._pending
+    assert scored[-1] is False                                   # nothing on the head in the truth
+    tracker._pending = ((*scored[:-1], True), *rest)
+    tracker.identify_frame(published)
+    assert tracker.identity.switches == 0
+    tracker.identify_frame(tracker.fit_frame(1, cues(1)))
+    assert tracker.identity.switches == 1
+    rec.close()
+
 @pytest.mark.parametrize("noise_seed", range(6))
 def test_cold_start_with_the_hands_wrong_keeps_the_right_feet(kick_reversed, noise_seed):
     """A cold start whose hands every view labels the wrong way round, the feet right: the

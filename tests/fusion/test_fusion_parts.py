@@ -6,7 +6,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mocap_rt.fusion.filter import CueFilter, FilterConfig
-from mocap_rt.fusion.views import RigProjector, frontal_pair, head_on_trunk, predict_views, triangulate_cues
+from mocap_rt.cues import CameraCues
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, frontal_pair, hands_on_head, head_on_trunk,
+                                    predict_views, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator, ill_conditioned
 from mocap_rt.geometry.rig import ring_rig
 from mocap_rt.geometry.triangulate import triangulate_with_prior
@@ -188,6 +190,58 @@ def test_zbuffer_hides_a_cue_behind_a_nearer_one():
     xy, vis, _ = predict_views(RigProjector(rig.cameras), X)
     assert np.isnan(xy[:, 2]).all() and not vis[:, 2].any()
 
+
+
+def _cues_at(rig, xy, rad):
+    """Each camera's cues at the pixels ``xy`` (C, 6, 2), the head's blob of radius ``rad`` (C,)."""
+    return {c.name: CameraCues(c.name, 0, xy[i], np.zeros((6, 2, 2)), np.full(6, np.pi * rad[i] ** 2), np.ones(6))
+            for i, c in enumerate(rig.cameras)}
+
+
+def test_a_hand_resting_on_the_head_is_kept_where_the_prediction_shows_it():
+    """``cue_pixels`` drops a hand found on the head's blob (the face reported twice), unless
+    ``hands_on_head`` says the prediction rests that hand on the head, visible and sticking out of
+    the head's disc in the view: a hand on top of the head stays measured; one the head hides, one
+    passing in front of the face, one inside the head, one swinging past or one predicted elsewhere
+    does not."""
+    rig = ring_rig()
+    proj = RigProjector(rig.cameras)
+    index = {c.name: i for i, c in enumerate(rig.cameras)}
+    head = np.array([0.0, 0.0, 1.6])
+    to_cam0 = (rig.cameras[0].center - head) / np.linalg.norm(rig.cameras[0].center - head)
+    X = np.array([head, head + [0.0, 0.0, 0.14], head - 0.13 * to_cam0,       # on top; behind, as cam 0 sees it
+                  [-0.1, 0, 0.05], [0.1, 0, 0.05], [0, 0, 1.1]])
+    xy, vis, rad = predict_views(proj, X, CUE_RADII_M)
+    measured = xy.copy()
+    measured[0, 2] = xy[0, 0] + [0.0, 0.5 * rad[0, 0]]         # cam 0 reports the face as the hidden hand
+    cues = _cues_at(rig, measured, rad[:, 0])
+    on_blob = np.linalg.norm(measured[:, 1:3] - measured[:, :1], axis=-1) < 1.5 * rad[:, :1]
+    assert on_blob[:, 0].all() and on_blob[0, 1]                # the cases the drop is for
+
+    uv, w, kept = cue_pixels(cues, index, len(rig.cameras), 0.1)
+    assert np.isnan(uv[:, 1]).all() and (w[:, 1] == 0).all() and not kept.any()   # no prediction: dropped
+    np.testing.assert_allclose(uv[:, 0], xy[:, 0])                                  # the head stays
+
+    still = np.zeros(6)
+    resting = hands_on_head(proj, X, still, 0.12, 0.20, 0.5)
+    assert not hands_on_head(proj, X, np.full(6, 1.0), 0.12, 0.20, 0.5)[1].any()   # swinging past: not resting
+    assert resting[1][:, 1].all() and not resting[1][0, 2]     # on top: everywhere; behind: not in cam 0
+    uv, w, kept = cue_pixels(cues, index, len(rig.cameras), 0.1, resting)
+    np.testing.assert_allclose(uv[:, 1], xy[:, 1])              # resting on the head: kept in every view
+    assert kept[:, 1].all() and np.isnan(uv[0, 2]).all() and not kept[0, 2]
+    assert not kept[:, [0, 3, 4, 5]].any()
+
+    for hand in (head + 0.25 * to_cam0, head + [0.0, 0.0, 0.08]):   # in front of the face; inside the head
+        X2 = X.copy()
+        X2[1] = hand
+        assert not hands_on_head(proj, X2, still, 0.12, 0.20, 0.5)[1][:, 1].any()
+    X2 = X.copy()
+    X2[1] = head + 0.15 * to_cam0           # on the face: cam 0 sees it inside the head's disc, others beside it
+    shown = hands_on_head(proj, X2, still, 0.12, 0.20, 0.5)[1][:, 1]
+    assert predict_views(proj, X2, CUE_RADII_M)[1][0, 1] and not shown[0] and shown.any()
+    far = (resting[0].copy(), resting[1])
+    far[0][:, 1] = proj.project(np.array([[-0.3, 0.0, 1.0]]))[0][:, 0]     # predicted at the hip
+    assert np.isnan(cue_pixels(cues, index, len(rig.cameras), 0.1, far)[0][:, 1]).all()
 
 def _two_hands_uv(rig):
     X = np.array([[0, 0, 1.6], [-0.35, 0.1, 1.0], [0.35, -0.1, 1.1], [-0.1, 0, 0.05], [0.12, 0.05, 0.05],
