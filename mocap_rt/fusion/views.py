@@ -80,7 +80,7 @@ def cue_pixels(cues: Mapping[str, CameraCues], index: Mapping[str, int], n_camer
     return uv, w, kept
 
 
-def hands_on_head(proj: "RigProjector", pred: np.ndarray, speed: np.ndarray, min_m: float, max_m: float,
+def hands_on_head(proj: RigProjector, pred: np.ndarray, speed: np.ndarray, min_m: float, max_m: float,
                   max_mps: float) -> tuple[np.ndarray, np.ndarray]:
     """Where the prediction ``pred`` (6, 3) (NaN = unknown) shows a hand resting on the head:
     the predicted pixels (C, 6, 2) and, per view, (C, 6) bool, True for a hand whose centre lies
