@@ -90,10 +90,14 @@ def hands_on_head(proj: RigProjector, pred: np.ndarray, speed: np.ndarray, min_m
     (``predict_views``' Z-buffer) and outside the head's disc there (colour parts a hand from the
     head only where it sticks out of it). For ``cue_pixels``: such a hand, found on the head's
     blob in the view, is measured there, not taken for the face reported twice."""
-    xy, vis, rad = predict_views(proj, pred, CUE_RADII_M)
     d = np.linalg.norm(pred - pred[C_HEAD], axis=1)                                       # NaN: False below
+    resting = (d >= min_m) & (d <= max_m) & (speed < max_mps)
+    if not resting[[C_HAND_L, C_HAND_R]].any():          # most frames: no projection needed
+        n_cams = proj.K.shape[0]
+        return np.full((n_cams, N_CUES, 2), np.nan), np.zeros((n_cams, N_CUES), bool)
+    xy, vis, rad = predict_views(proj, pred, CUE_RADII_M)
     outside = np.linalg.norm(xy - xy[:, C_HEAD, None], axis=-1) > rad[:, C_HEAD, None]
-    return xy, vis & ((d >= min_m) & (d <= max_m) & (speed < max_mps))[None, :] & outside
+    return xy, vis & resting[None, :] & outside
 
 
 class RigProjector:
