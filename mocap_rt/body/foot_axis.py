@@ -149,7 +149,7 @@ def _measure(cov, xy, leg, area, conf, min_area_px, out):
 
 def follow_relabelling(axes: np.ndarray, uv_before: np.ndarray, uv_after: np.ndarray) -> np.ndarray:
     """The per-cue axes (6, C, 3) of ``foot_axes`` relabelled as a view's 2D cues were
-    (``views.fix_left_right`` exchanges a view's left/right pixels (C, 6, 2)): in each view the
+    (``labels.fix_left_right`` exchanges a view's left/right pixels (C, 6, 2)): in each view the
     two feet's rows are exchanged where the feet's pixels were."""
     out = axes.copy()
     same = (uv_before == uv_after) | (np.isnan(uv_before) & np.isnan(uv_after))    # (C, 6, 2)

@@ -33,7 +33,7 @@ class FusionConfig:
     min_ray_angle_deg: float = 20.0        # a cue whose views' rays meet closer to parallel (two cameras facing
                                            # each other) is placed along them by the filter (ill_conditioned and
                                            # triangulate_with_prior, mocap_rt.geometry); 0 = off
-    fix_left_right: bool = True            # make the views' left/right labels agree (views.fix_left_right)
+    fix_left_right: bool = True            # make the views' left/right labels agree (labels.fix_left_right)
     duplicate_m: float = 0.12              # a hand/foot this near the head is a duplicate unless predicted there
     hand_on_head_m: float = 0.20           # a hand predicted this near the head (beyond duplicate_m) and moving
     hand_rest_mps: float = 0.5             # ... slower than this rests on it: kept where a view finds it on the

@@ -4,7 +4,7 @@
 
 1. silhouettes: the views' compact silhouettes prepared for the fit (``body.silhouette``);
 2. triangulate: the 2D cues of the cameras present, their left/right labels made to agree
-   (``views.fix_left_right``), triangulated by ``FusionConfig.views`` (``"all"``: every
+   (``labels.fix_left_right``), triangulated by ``FusionConfig.views`` (``"all"``: every
    view that sees a cue, with reprojection outlier rejection; ``"pair"``: the frontal
    pair of seed digest A.6);
 3. filter: a constant-velocity Kalman filter per cue (``fusion.filter``), gating and coasting;
@@ -64,9 +64,9 @@ from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityS
                                       feet_together, feet_told_apart, score_hypotheses, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
-from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fix_left_right, frontal_pair, hands_on_head,
-                                   head_on_trunk, near_parallel_from_prior, predict_views, reject_duplicates,
-                                   triangulate_cues)
+from mocap_rt.fusion.labels import fix_left_right
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, frontal_pair, hands_on_head, head_on_trunk,
+                                   near_parallel_from_prior, predict_views, reject_duplicates, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton

@@ -197,7 +197,7 @@ def test_leg_cost_is_zero_at_the_ankle_and_the_capped_square_at_the_turned_ankle
 
 
 def test_axes_follow_a_views_relabelled_feet():
-    """A view whose left/right foot pixels were exchanged (views.fix_left_right) exchanges its
+    """A view whose left/right foot pixels were exchanged (labels.fix_left_right) exchanges its
     two feet's axes; the other views keep theirs."""
     rng = np.random.default_rng(1)
     axes = rng.normal(size=(6, 3, 3))

@@ -252,7 +252,7 @@ def _two_hands_uv(rig):
 
 @pytest.mark.parametrize("with_reference", [True, False])
 def test_fix_left_right_makes_the_views_agree(with_reference):
-    from mocap_rt.fusion.views import fix_left_right
+    from mocap_rt.fusion.labels import fix_left_right
 
     rig = ring_rig()
     X, uv = _two_hands_uv(rig)
@@ -268,9 +268,9 @@ def test_fix_left_right_makes_the_views_agree(with_reference):
 
 
 def _label_search_by_loop(tri, proj, uv, w, a, b, cams):
-    """The cold label search one combination at a time (the batched ``views._label_search``'s
+    """The cold label search one combination at a time (the batched ``labels._label_search``'s
     oracle): (C,) bool views to swap, or None."""
-    from mocap_rt.fusion.views import LR_COST_CAP_PX
+    from mocap_rt.fusion.labels import LR_COST_CAP_PX
 
     best = None
     for mask in range(1 << (cams.size - 1)):
@@ -303,7 +303,7 @@ def test_the_batched_cold_label_search_chooses_what_one_combination_at_a_time_do
     """Random views of the two hands (some labelled the other way round, some cues missing or
     weighed 0, pixel noise up to the error cap): the batched search swaps the same views as
     trying each combination in turn, and those views make the labels agree."""
-    from mocap_rt.fusion.views import _label_search
+    from mocap_rt.fusion.labels import _label_search
 
     rng = np.random.default_rng(seed)
     rig = ring_rig()
