@@ -12,7 +12,10 @@ goes through ``mocap_rt.fusion.offline.process_recording`` (what ``mocap-rt proc
 perception of every camera in the closed loop with fusion, estimated bone lengths) and is
 scored against its truth with ``mocap_rt.fusion.evaluate.suite_metrics``:
 
-* MPJPE / PA-MPJPE (mm; PA = per-frame similarity Procrustes), elbow and knee mean error;
+* MPJPE / PA-MPJPE (mm; PA = per-frame similarity Procrustes), elbow and knee mean error,
+  over the joints the fusion estimated (``FusionResult.joint_valid``); "shown" = MPJPE over
+  every joint of the published figure, the ones not estimated (a hand no view measured) where
+  the figure put them: what a user of the BVH sees;
 * mirr% = % of frames whose hands or feet are labelled with the wrong side: the crossed
   labelling of a pair is closer to the truth than the straight one by > 5 cm (summed);
 * heading error median / p95 (deg): trunk heading (forward = (hip_r -> hip_l) x (pelvis -> neck))
@@ -40,7 +43,8 @@ from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.names import C_FOOT_L, C_FOOT_R, CUE_NAMES, J
 
 TARGETS = {"mpjpe_mm": 30.0, "mirrored_pct": 0.0, "heading_p95_deg": 15.0, "elbow_mm": 40.0, "knee_mm": 40.0}
-COLS = (("MPJPE", "mpjpe_mm", 6, 0), ("PA", "pa_mpjpe_mm", 5, 0), ("mirr%", "mirrored_pct", 5, 0),
+COLS = (("MPJPE", "mpjpe_mm", 6, 0), ("shown", "mpjpe_shown_mm", 6, 0), ("PA", "pa_mpjpe_mm", 5, 0),
+        ("mirr%", "mirrored_pct", 5, 0),
         ("hd50", "heading_med_deg", 5, 0), ("hd95", "heading_p95_deg", 5, 0), ("elbow", "elbow_mm", 5, 0),
         ("knee", "knee_mm", 5, 0), ("cue50", "cue_med_mm", 5, 0), ("cue95", "cue_p95_mm", 5, 0),
         ("aHip", "rmse_hips_deg", 5, 0), ("aKnee", "rmse_knees_deg", 5, 0), ("aShd", "rmse_shoulders_deg", 5, 0),
@@ -69,11 +73,12 @@ def run_clip(rec_dir, lock: bool, legs: bool = True, truth_bones: bool = False,
         out = process_recording(rec_dir, tmp, config, progress=False)
         wall = time.perf_counter() - t0
     joints = np.where(out.joint_valid[..., None], out.joints, np.nan)
+    shown = out.joints.copy()
     cues = out.cues.copy()
     if not legs:
-        joints[:, LEGS] = np.nan
+        joints[:, LEGS] = shown[:, LEGS] = np.nan
         cues[:, [C_FOOT_L, C_FOOT_R]] = np.nan
-    m = suite_metrics(truth, out.frames, cues, joints, out.fusion_ms)
+    m = suite_metrics(truth, out.frames, cues, joints, out.fusion_ms, shown)
     m["process_s"] = wall
     return m
 

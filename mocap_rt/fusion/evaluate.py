@@ -255,11 +255,13 @@ def _mean_finite(values) -> float:
 
 
 def suite_metrics(truth: dict, frames: np.ndarray, cues: np.ndarray, joints: np.ndarray,
-                  fusion_ms: np.ndarray | None = None) -> dict[str, float]:
+                  fusion_ms: np.ndarray | None = None, shown: np.ndarray | None = None) -> dict[str, float]:
     """The motion-suite figures of one clip (docs/body.md "Motion suite"): MPJPE, PA-MPJPE,
     elbow/knee mean error (mm), % frames mirrored, heading error median/p95 (deg), joint-angle
     RMSE per group (deg), cue 3D error median/p95 overall and per cue (mm), fusion ms
-    median/p99. Inputs as for ``accuracy``; joints NaN where not estimated."""
+    median/p99. Inputs as for ``accuracy``; joints NaN where not estimated. ``shown`` (F, J, 3):
+    the figure as published, with the joints not estimated where it put them: its MPJPE is
+    ``mpjpe_shown_mm`` (what a user of the BVH sees)."""
     acc = accuracy(truth, frames, cues, joints)
     idx = align_truth(truth, frames)
     names = [str(n) for n in truth.get("joint_names", JOINT_NAMES)]
@@ -280,6 +282,8 @@ def suite_metrics(truth: dict, frames: np.ndarray, cues: np.ndarray, joints: np.
     m.update({f"rmse_{g}_deg": v for g, v in angle_rmse_deg(joints, tj).items()})
     for n, (med, p95) in acc.per_cue_mm().items():
         m[f"cue_{n}_med_mm"], m[f"cue_{n}_p95_mm"] = med, p95
+    if shown is not None:
+        m["mpjpe_shown_mm"] = float(np.nanmean(np.linalg.norm(shown - tj, axis=-1)) * 1e3)
     if fusion_ms is not None and len(fusion_ms):
         m["fusion_ms_med"], m["fusion_ms_p99"] = float(np.median(fusion_ms)), float(np.percentile(fusion_ms, 99))
     return m

@@ -119,3 +119,13 @@ def test_angle_rmse_and_suite_metrics_hand_computed():
     assert m["mirrored_pct"] == 0.0 and m["heading_p95_deg"] == pytest.approx(0.0, abs=1e-9)
     assert m["cue_hand_l_p95_mm"] == pytest.approx(10.0) and m["knee_mm"] == pytest.approx(10.0)
     assert m["fusion_ms_med"] == 2.0 and m["fusion_ms_p99"] == pytest.approx(2.98)
+    # the figure as shown: a hand not estimated (NaN in the scored joints) but drawn 0.31 m off
+    # counts there, once, among the 2 x 20 joints: (39 * 10 + 310) / 40 mm
+    Ej = Es.copy()
+    Ej[0, J["hand_r"]] = np.nan
+    shown = Es.copy()
+    shown[0, J["hand_r"]] = T[0, J["hand_r"]] + [0, 0.31, 0]
+    m = suite_metrics(truth, np.array([5, 6]), Es[:, list(CUE_JOINT_INDEX)], Ej, None, shown)
+    assert m["mpjpe_mm"] == pytest.approx(10.0)
+    assert m["mpjpe_shown_mm"] == pytest.approx((39 * 10 + 310) / 40)
+    assert "mpjpe_shown_mm" not in suite_metrics(truth, np.array([5, 6]), Es[:, list(CUE_JOINT_INDEX)], Ej)
