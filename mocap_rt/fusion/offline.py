@@ -16,7 +16,7 @@ given or estimated; reusable with ``--bones``), ``OUT_DIR/poses.c3d`` and ``OUT_
 * ``joint_names`` (J,) str (the truth's names), ``frames`` (F,) int;
 * ``cues`` (F, 6, 3) the per-frame triangulated cues (NaN = not reconstructed),
   ``cue_names``, ``cue_valid`` (F, 6) bool, ``joint_valid`` (F, J) bool (False where a
-  limb's cue was missing and the limb was put at rest), ``pan_rad`` (F,) (the tracker's heading
+  limb's cue was missing: the limb held or at rest), ``pan_rad`` (F,) (the tracker's heading
   per frame, not smoothed), ``bone_lengths`` (11,)
   and ``bone_length_names``.
 """

@@ -147,7 +147,7 @@ def smooth_poses(model: BodyModel, root: np.ndarray, angles: np.ndarray, posed: 
     ``model``: the body the poses are of; root (F, 3) metres; angles (F, J, 3) radians, X-Y-Z
     (``body.kinematics``); posed (F,) bool: frames with a pose (the others are returned as
     given); limb_valid (F, J) bool: joints measured (False where the limb's cue was missing and
-    the limb put at rest: not filtered). ``cutoff_hz`` in (0, fps / 2)."""
+    the limb held or put at rest: not filtered). ``cutoff_hz`` in (0, fps / 2)."""
     if not 0.0 < cutoff_hz < fps / 2:
         raise ValueError(f"smoothing cutoff must be in (0, {fps / 2:g}) Hz (half the frame rate), got {cutoff_hz}")
     root, angles = root.copy(), angles.copy()

@@ -76,25 +76,31 @@ class PoseSolver:
         """The model the poses' angles are of (CCD refines on the full one)."""
         return self.model_full if self.config.ik == "ccd" else self.model
 
-    def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
-        """Cues (6, 3) with missing hands/feet put at the rest pose (arms hanging, legs straight),
-        placed with the body axes at the torso (``identity.fill_missing``)."""
-        return fill_missing(cues_ik, axes, self.rest_cues)
+    def fill_missing(self, cues_ik: np.ndarray, axes: np.ndarray, held: np.ndarray | None = None) -> np.ndarray:
+        """Cues (6, 3) with missing hands/feet put where ``held`` (6, 3) holds them (offsets from
+        the torso cue in the body frame, NaN = none: the tracker's last estimates), else at the
+        rest pose (arms hanging, legs straight), placed with the body axes at the torso
+        (``identity.fill_missing``)."""
+        rest = self.rest_cues
+        if held is not None:
+            rest = np.where(np.isfinite(held), rest[C_TORSO] + held, rest)
+        return fill_missing(cues_ik, axes, rest)
 
     def solve(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None = None,
-              targets: SilhouetteTargets | None = None, plain: Pose | None = None) -> Pose:
+              targets: SilhouetteTargets | None = None, plain: Pose | None = None,
+              held: np.ndarray | None = None) -> Pose:
         """The published pose for given body axes and the state's ``swivel`` (module doc): the
         swivels searched again and the trunk refined (``hung``) where that fits the silhouettes
         better, else the plain pose (``plain`` if given: the plain pose of ``swivel``, solved
         already); then its pelvis turned to the knees (``twisted``). Missing hand/foot cues (NaN
-        rows) are filled from the rest pose; with ``targets`` (views) the elbows are chosen on the
-        silhouettes as the fit chose them (``FitConfig.elbow_silhouette``)."""
-        searched = self.published_swivel(cues_ik, axes, swivel, targets)
+        rows) are filled from ``held`` (``fill_missing``); with ``targets`` (views) the elbows are
+        chosen on the silhouettes as the fit chose them (``FitConfig.elbow_silhouette``)."""
+        searched = self.published_swivel(cues_ik, axes, swivel, targets, held)
         if searched is not None:
             swivel, plain = searched, None
-        pose = self.hung(cues_ik, axes, swivel, targets)
+        pose = self.hung(cues_ik, axes, swivel, targets, held)
         if pose is None:
-            pose = plain if plain is not None else self.plain(cues_ik, axes, swivel, targets)
+            pose = plain if plain is not None else self.plain(cues_ik, axes, swivel, targets, held)
         return self.twisted(pose, targets)
 
     def twisted(self, pose: Pose, targets: SilhouetteTargets | None) -> Pose:
@@ -108,13 +114,13 @@ class PoseSolver:
         return root, angles, forward_kinematics(self.pose_model, root, angles)[0]
 
     def published_swivel(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
-                         targets: SilhouetteTargets | None) -> np.ndarray | None:
+                         targets: SilhouetteTargets | None, held: np.ndarray | None = None) -> np.ndarray | None:
         """The swivels (4,) searched again around ``swivel`` on the silhouettes, then refined
         (module doc, step 1), the pan kept; None without views, a missing trunk cue or both
         searches off."""
         if self._swivel_refiner is None or targets is None or targets.n_views == 0:
             return None
-        full = self.fill_missing(cues_ik, axes)
+        full = self.fill_missing(cues_ik, axes, held)
         if not np.isfinite(full).all():
             return None
         fit = self.config.fit
@@ -133,24 +139,24 @@ class PoseSolver:
         return sw
 
     def plain(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
-              targets: SilhouetteTargets | None) -> Pose:
+              targets: SilhouetteTargets | None, held: np.ndarray | None = None) -> Pose:
         """The pose with the trunk from the torso cue: the tracker's state."""
-        return self._pose(cues_ik, axes, swivel, targets, self.config.analytic)
+        return self._pose(self.fill_missing(cues_ik, axes, held), axes, swivel, targets, self.config.analytic)
 
     def hung(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
-             targets: SilhouetteTargets | None) -> Pose | None:
+             targets: SilhouetteTargets | None, held: np.ndarray | None = None) -> Pose | None:
         """The pose with its trunk hung from the head cue and tilted to the silhouettes, where
         that fits them better (``FitConfig.refine_trunk``, ``BodyFitter.refine_trunk``); else None."""
         if not self.config.fit.refine_trunk:
             return None
-        full = self.fill_missing(cues_ik, axes)
+        full = self.fill_missing(cues_ik, axes, held)
         hung = self.fitter.refine_trunk(full, axes, swivel, targets) if np.isfinite(full).all() else None
         return None if hung is None else self._pose(*hung, swivel, targets, self.fitter.hung)
 
     def _pose(self, cues_ik: np.ndarray, axes: np.ndarray, swivel: np.ndarray | None,
               targets: SilhouetteTargets | None, config) -> Pose:
-        """(root, angles, joints) of the analytic pose under ``config`` (then CCD with ``ik`` "ccd")."""
-        cues_ik = self.fill_missing(cues_ik, axes)
+        """(root, angles, joints) of the analytic pose of the cues (6, 3, all finite) under
+        ``config`` (then CCD with ``ik`` "ccd")."""
         root, angles = analytic_pose(self.model, cues_ik, axes, config, swivel, *self.fitter.elbow_views(targets))
         if self.config.ik == "ccd":
             angles = solve_ccd(self.model_full, root, angles, _EFFECTOR_JOINTS, cues_ik[_EFFECTOR_CUES],

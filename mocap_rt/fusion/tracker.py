@@ -70,7 +70,7 @@ from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, fronta
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
-from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, N_CUES
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, LIMB_CUES, N_CUES
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +86,18 @@ _HIPS = [J["hip_l"], J["hip_r"]]
 _FEET_ALT = ALTERNATIVES.index("feet")
 _HANDS_ALT = ALTERNATIVES.index("hands")
 _MIRROR_ALT = ALTERNATIVES.index("mirror")
+
+
+def hold_limbs(held: np.ndarray, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """``held`` (6, 3) with each hand and foot estimated in ``cues_ik`` (6, 3, NaN = not)
+    held at its offset from the torso cue in the body frame ``axes`` (3, 3): where the pose
+    puts that limb while no view measures it (``PoseSolver.fill_missing``). A hand behind the
+    head stays raised, where the rest pose dropped the arm (its hand 0.9 m off)."""
+    out = held.copy()
+    limbs = np.array(LIMB_CUES)
+    known = limbs[np.isfinite(cues_ik[limbs]).all(axis=1)]
+    out[known] = (cues_ik[known] - cues_ik[C_TORSO]) @ axes
+    return out
 
 
 class BodyTracker:
@@ -115,6 +127,7 @@ class BodyTracker:
         self._pair: tuple[int, int] | None = None
         self._vel: np.ndarray | None = None
         self._swivel = np.zeros(4)   # elbow/knee pole swivels (analytic.refine_swivel)
+        self._held = np.full((N_CUES, 3), np.nan)   # hands/feet last estimated: offsets from the torso, body frame
         self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
         self.identity = IdentityState()
         self._pending = None          # fit_frame -> identify_frame: what the identity scores
@@ -194,7 +207,7 @@ class BodyTracker:
                 self._swivel = refine_swivel(solver.model, solver.fill_missing(cues_ik, axes), axes, self._swivel, cfg)
         self._right = axes[:, 0]
         self._axes = axes
-        root, angles, joints = solver.plain(cues_ik, axes, self._swivel, targets)
+        root, angles, joints = solver.plain(cues_ik, axes, self._swivel, targets, self._held)
         return root, angles, joints, axes
 
     def _solve_and_keep(self, cues_ik: np.ndarray, targets: SilhouetteTargets | None,
@@ -205,8 +218,9 @@ class BodyTracker:
         root, angles, joints, axes = self.solve_pose(cues_ik, self._vel, targets, feet)
         self._last_pose, self._hips = (root, angles), joints[_HIPS].copy()
         plain = (root, angles, joints) if self.published is self.solver else None
-        root, angles, joints = self.published.solve(cues_ik, axes, self._swivel, targets, plain=plain)
+        root, angles, joints = self.published.solve(cues_ik, axes, self._swivel, targets, plain=plain, held=self._held)
         self._published = (root, angles)
+        self._held = hold_limbs(self._held, cues_ik, axes)
         return root, angles, joints, axes
 
     def finish_calibration(self) -> bool:
@@ -417,6 +431,7 @@ class BodyTracker:
             if self._axes is not None:
                 self._axes = self._axes * [-1.0, -1.0, 1.0]
         self._swivel = np.zeros(4)
+        self._held[:] = np.nan           # held under the labels just found wrong
         log.info("identity: switched to the %s alternative (costs %s)", ALTERNATIVES[k], np.round(costs, 1))
         return k
 

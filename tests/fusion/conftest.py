@@ -63,6 +63,14 @@ def hand_behind_head(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def hand_held_behind_head(tmp_path_factory):
+    """The procedural hand behind the head (seed 0), 2 s from 1.0 s: the right hand reaches up
+    (0.49 m from the head's centre) and from frame 18 rests behind the head (0.125 m, still);
+    6-camera ring at 320x240, 30 fps, with truth and silhouettes."""
+    return _render(tmp_path_factory, "hand_held_behind_head", "procedural:hand_behind_head:0", None, 2.0, 1.0)
+
+
+@pytest.fixture(scope="session")
 def jumping_jacks(tmp_path_factory):
     """The procedural jumping jacks (seed 0), 2 s from 0.8 s as the suite plays them: the arms
     swing sideways past the shoulders to overhead and back, the feet jump apart and together;

@@ -268,3 +268,61 @@ def test_the_published_pose_has_its_trunk_refined_and_the_state_keeps_the_plain_
         swivelled += not np.allclose(c.joints, a.joints)
     assert 0 < hung and 0 < swivelled, (hung, swivelled)
     rec.close()
+
+
+def test_a_hand_no_view_measures_is_held_where_it_was_not_dropped_to_rest(hand_held_behind_head):
+    """The right hand rests behind the head; from frame 25 no view reports it. Once its track has
+    coasted out (``FilterConfig.max_coast_s``) the published hand stays where it was last
+    estimated, turned with the body (``hold_limbs``), not at the rest pose (the arm dropped)."""
+    from mocap_rt.fusion.evaluate import truth_camera_cues
+    from mocap_rt.io.recording import Recording
+    from mocap_rt.names import C_HAND_R, C_TORSO, J
+
+    with Recording(hand_held_behind_head) as rec:
+        truth, rig, n = rec.truth, rec.rig, rec.n_frames
+        names, widths = list(rec.rig.names), {c.name: int(c.size[0]) for c in rec.rig.cameras}
+        tracker = BodyTracker(rig, FusionConfig(fps=rec.fps))
+        rng = np.random.default_rng(0)
+        dead_from = 25 + int(np.ceil(tracker.config.filter.max_coast_s * rec.fps)) + 1
+        assert n - dead_from >= 10
+        held, rest = [], []
+        for f in range(n):
+            cues = truth_camera_cues(truth, names, f, f, 1.0, rng, widths)
+            if f >= 25:
+                for cc in cues.values():
+                    cc.xy[C_HAND_R], cc.confidence[C_HAND_R] = np.nan, 0.0
+            r = tracker.step(f, cues)
+            if f >= dead_from:
+                assert not r.cue_valid[C_HAND_R] and not np.isfinite(r.cues_ik[C_HAND_R]).all()
+                true_hand = truth["joints"][f][J["hand_r"]]
+                held.append(np.linalg.norm(r.joints[J["hand_r"]] - true_hand))
+                at_rest = tracker.solver.fill_missing(r.cues_ik, r.axes)[C_HAND_R]
+                rest.append(np.linalg.norm(at_rest - true_hand))
+    assert np.max(held) < 0.15
+    assert np.min(rest) > 0.5          # where the rest pose puts it: the arm hanging
+
+
+def test_a_held_limb_keeps_its_place_on_the_turning_body():
+    """``hold_limbs`` keeps a measured hand's offset from the torso in the body frame;
+    ``PoseSolver.fill_missing`` puts it back with the frame's axes: the body turned 90 deg more
+    about Z, the hand's offset (0.3, 0.1, 0.4) turns to (-0.1, 0.3, 0.4) (by hand). A limb never
+    held stays at rest."""
+    from scipy.spatial.transform import Rotation
+
+    from mocap_rt.fusion.solver import PoseSolver
+    from mocap_rt.fusion.tracker import hold_limbs
+    from mocap_rt.names import C_HAND_L, C_HAND_R, C_HEAD, C_TORSO
+
+    rz = lambda deg: Rotation.from_euler("z", deg, degrees=True).as_matrix()      # noqa: E731
+    cues = np.full((6, 3), np.nan)
+    cues[C_TORSO], cues[C_HEAD] = [1.0, 2.0, 1.0], [1.0, 2.0, 1.5]
+    cues[C_HAND_L] = cues[C_TORSO] + [0.3, 0.1, 0.4]
+    held = hold_limbs(np.full((6, 3), np.nan), cues, rz(90))
+    np.testing.assert_allclose(held[C_HAND_L], [0.1, -0.3, 0.4], atol=1e-12)
+    assert np.isnan(held[[C_HAND_R, C_HEAD]]).all()
+    solver = PoseSolver(BoneLengths(), FusionConfig())
+    later = np.full((6, 3), np.nan)
+    later[C_TORSO], later[C_HEAD] = [0.0, 0.0, 1.0], [0.0, 0.0, 1.5]
+    filled = solver.fill_missing(later, rz(180), held)
+    np.testing.assert_allclose(filled[C_HAND_L], [-0.1, 0.3, 1.4], atol=1e-12)
+    np.testing.assert_allclose(filled[C_HAND_R], solver.fill_missing(later, rz(180))[C_HAND_R])
