@@ -65,8 +65,9 @@ from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityS
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.labels import fix_left_right
-from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, frontal_pair, hands_on_head, head_on_trunk,
-                                   near_parallel_from_prior, predict_views, reject_duplicates, triangulate_cues)
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, beyond_reach, cue_pixels, frontal_pair, hands_on_head,
+                                   head_on_trunk, near_parallel_from_prior, predict_views, reject_duplicates,
+                                   torso_reach_m, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
@@ -143,6 +144,7 @@ class BodyTracker:
         pitch = cfg.subject_foot_pitch_deg if subject_pitch_deg is None else subject_pitch_deg
         subject = (lengths if published is None else published).with_foot_pitch(pitch)
         self.published = self.solver if subject == self.solver.lengths else PoseSolver(subject, cfg)
+        self._reach = torso_reach_m(subject)
 
     @property
     def lengths(self) -> BoneLengths:
@@ -277,6 +279,7 @@ class BodyTracker:
             self.relabelled += n_fixed
             feet = follow_relabelling(feet, uv0, uv) if (feet is not None and n_fixed) else feet
         X, used = self.triangulate(uv, w, self.filter.estimates())
+        X = beyond_reach(X, self._reach)
         valid = np.isfinite(X).all(axis=1)
         X = reject_duplicates(X, valid, used, pred, self.config.duplicate_m)
         valid = np.isfinite(X).all(axis=1)

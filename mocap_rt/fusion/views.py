@@ -27,12 +27,13 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from mocap_rt.body.skeleton import BoneLengths
 from mocap_rt.cues import CameraCues
 from mocap_rt.geometry.camera import Camera
 from mocap_rt.geometry.lens import dist8, distort
 from mocap_rt.geometry.ray_triangulator import RayTriangulator, ill_conditioned
 from mocap_rt.geometry.triangulate import triangulate_with_prior
-from mocap_rt.names import C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, LIMB_CUES, LR_PAIRS, N_CUES
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO, LIMB_CUES, LR_PAIRS, N_CUES
 
 # Physical cue radii (metres) for the predicted blob size and the Z-buffer discs,
 # in CUE_NAMES order: head, hands, feet (shoe), torso.
@@ -338,6 +339,33 @@ def predict_views(proj: RigProjector, X: np.ndarray, radii_m: np.ndarray = CUE_R
 
 # two cues of a left/right pair closer than this (m) are one hand or foot labelled twice
 SAME_POINT_M = 0.03
+# A hand or foot farther from the torso cue than this many times the limb's reach (``torso_reach_m``
+# of the subject's lengths, or the default adult's before the calibration) is no measurement: in
+# the studio's truth no cue comes nearer than 1.05 of the subject's reach.
+REACH_MARGIN = 1.3
+
+
+def torso_reach_m(lengths: BoneLengths) -> np.ndarray:
+    """(6,) how far each cue can lie from the torso cue (metres): a hand the arm's length
+    straight from the shoulder, a foot the leg's from the hip (the torso cue within
+    ``torso_cue_up_m`` of the trunk's middle); no bound (inf) on the head and the torso."""
+    up = abs(lengths.torso_cue_up_m)
+    arm = np.hypot(lengths.trunk_m / 2, lengths.shoulder_half_width_m) + lengths.upper_arm_m + lengths.forearm_m
+    leg = np.hypot(lengths.trunk_m / 2, lengths.hip_half_width_m) + lengths.leg_reach_m()
+    reach = np.full(N_CUES, np.inf)
+    reach[[C_HAND_L, C_HAND_R]] = arm + lengths.hand_m + up
+    reach[[C_FOOT_L, C_FOOT_R]] = leg + up
+    return reach
+
+
+def beyond_reach(X: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """A copy of the 3D cues X (6, 3) without a hand or foot farther than ``REACH_MARGIN`` times
+    its ``reach`` (6,) from the torso cue (``torso_reach_m``): two views that paired different
+    limbs triangulate one far off the body (a cold start whose hand only one view kept: 2.4 m)."""
+    if not np.isfinite(X[C_TORSO]).all():
+        return X
+    far = np.linalg.norm(X - X[C_TORSO], axis=1) > REACH_MARGIN * reach
+    return np.where(far[:, None], np.nan, X)
 
 
 def reject_duplicates(X: np.ndarray, valid: np.ndarray, used: np.ndarray, pred: np.ndarray,

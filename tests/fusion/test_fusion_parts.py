@@ -343,3 +343,33 @@ def test_kalman_recovers_after_one_bad_measurement():
     f.update(10 / 30, np.array([[0.0, 0, 0.85]]))          # a bad one inside the gate: wild velocity
     accepted = [f.update(k / 30, np.array([[0.0, 0, 1]]))[0] for k in range(11, 16)]
     assert all(accepted) and np.allclose(f.pos[0], [0, 0, 1], atol=0.02)
+
+
+def test_a_limb_beyond_its_reach_from_the_torso_is_no_measurement(jumping_jacks):
+    """``torso_reach_m`` by hand for the default adult: a hand reaches hypot(0.25, 0.19) + 0.29 +
+    0.26 + 0.08 m from the torso cue; ``beyond_reach`` drops one farther than 1.3 times that and
+    keeps the head however far. Every frame of the jumping jacks' truth (arms overhead, feet
+    apart) is kept with the subject's lengths."""
+    from mocap_rt.body.estimate import bone_lengths_from_joints
+    from mocap_rt.body.skeleton import BoneLengths
+    from mocap_rt.fusion.views import REACH_MARGIN, beyond_reach, torso_reach_m
+    from mocap_rt.io.recording import Recording
+    from mocap_rt.names import C_FOOT_L, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO
+
+    reach = torso_reach_m(BoneLengths())
+    arm = np.hypot(0.25, 0.19) + 0.29 + 0.26 + 0.08
+    assert reach[C_HAND_L] == pytest.approx(arm) and np.isinf(reach[[C_HEAD, C_TORSO]]).all()
+    assert reach[C_FOOT_L] == pytest.approx(np.hypot(0.25, 0.09) + BoneLengths().leg_reach_m())
+    X = np.ones((6, 3))                                 # the feet at the torso cue
+    X[C_HEAD] = X[C_TORSO] + [0.0, 0.0, 3.0]
+    X[C_HAND_L] = X[C_TORSO] + [0.0, REACH_MARGIN * arm - 0.01, 0.0]
+    X[C_HAND_R] = X[C_TORSO] + [REACH_MARGIN * arm + 0.01, 0.0, 0.0]
+    out = beyond_reach(X, reach)
+    assert np.isnan(out[C_HAND_R]).all()
+    np.testing.assert_array_equal(np.delete(out, C_HAND_R, axis=0), np.delete(X, C_HAND_R, axis=0))
+    X[C_TORSO] = np.nan                                 # no torso: nothing to measure the reach from
+    np.testing.assert_array_equal(beyond_reach(X, reach), X)
+    with Recording(jumping_jacks) as rec:
+        cues, joints = np.asarray(rec.truth["cues"]), np.asarray(rec.truth["joints"])
+    subject = torso_reach_m(bone_lengths_from_joints(joints))
+    assert all(np.isfinite(beyond_reach(c, subject)).all() for c in cues)

@@ -326,3 +326,23 @@ def test_a_held_limb_keeps_its_place_on_the_turning_body():
     filled = solver.fill_missing(later, rz(180), held)
     np.testing.assert_allclose(filled[C_HAND_L], [-0.1, 0.3, 1.4], atol=1e-12)
     np.testing.assert_allclose(filled[C_HAND_R], solver.fill_missing(later, rz(180))[C_HAND_R])
+
+
+def test_a_cold_start_with_the_hand_behind_the_head_puts_it_nowhere_off_the_body(hand_held_behind_head):
+    """A tracker started while the right hand rests behind the head (frame 25): most views
+    drop the hand as the face reported twice, and the left/right labelling pairs the one view
+    that keeps it with another view's left hand, 2.8 m off the body. ``beyond_reach`` drops that;
+    the hand is measured from the 5th frame on, never more than 0.1 m off."""
+    from mocap_rt.fusion.evaluate import truth_camera_cues
+    from mocap_rt.io.recording import Recording
+    from mocap_rt.names import C_HAND_R
+
+    with Recording(hand_held_behind_head) as rec:
+        truth, n = rec.truth, rec.n_frames
+        names, widths = list(rec.rig.names), {c.name: int(c.size[0]) for c in rec.rig.cameras}
+        tracker = BodyTracker(rec.rig, FusionConfig(fps=rec.fps))
+        rng = np.random.default_rng(0)
+        err = np.array([np.linalg.norm(tracker.step(f, truth_camera_cues(truth, names, f, f, 1.0, rng, widths))
+                                       .cues_ik[C_HAND_R] - truth["cues"][f][C_HAND_R]) for f in range(25, n)])
+    assert np.isfinite(err[4:]).all()
+    assert np.nanmax(err) < 0.1
