@@ -69,7 +69,7 @@ import numpy as np
 from mocap_rt.body.fit import BodyFitter
 from mocap_rt.body.foot_axis import legs_only
 from mocap_rt.body.silhouette import SilhouetteTargets
-from mocap_rt.names import C_HEAD, C_TORSO, LR_PAIRS
+from mocap_rt.names import C_HEAD, C_TORSO, LIMB_CUES, LR_PAIRS
 from mocap_rt.studio.body_shape import SHIN_RADIUS_M
 
 # the alternatives to the current labelling, and the cue pairs each one exchanges
@@ -77,6 +77,8 @@ ALTERNATIVES = ("hands", "feet", "mirror")
 HANDS, FEET = LR_PAIRS
 ALTERNATIVE_PAIRS = ((HANDS,), (FEET,), (HANDS, FEET))
 _MIRROR = ALTERNATIVES.index("mirror")
+_FEET = ALTERNATIVES.index("feet")
+_HANDS = ALTERNATIVES.index("hands")
 _SINGLE = tuple(k for k in range(len(ALTERNATIVES)) if k != _MIRROR)
 # Two legs' lines (hip -> foot cue) closer than this (m) pass through each other: a shin's radius
 # (the studio's body). The truth's hip -> ankle lines keep >= 5 cm on every suite clip; its hip ->
@@ -153,6 +155,18 @@ def fill_missing(cues: np.ndarray, axes: np.ndarray, rest_cues: np.ndarray) -> n
     missing = ~np.isfinite(out).all(axis=1)
     if missing.any():
         out[missing] = out[C_TORSO] + (rest_cues[missing] - rest_cues[C_TORSO]) @ axes.T
+    return out
+
+
+def hold_limbs(held: np.ndarray, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """``held`` (6, 3) with each hand and foot estimated in ``cues_ik`` (6, 3, NaN = not)
+    held at its offset from the torso cue in the body frame ``axes`` (3, 3): where the pose
+    puts that limb while no view measures it (``PoseSolver.fill_missing``). A hand behind the
+    head stays raised, where the rest pose dropped the arm (its hand 0.9 m off)."""
+    out = held.copy()
+    limbs = np.array(LIMB_CUES)
+    known = limbs[np.isfinite(cues_ik[limbs]).all(axis=1)]
+    out[known] = (cues_ik[known] - cues_ik[C_TORSO]) @ axes
     return out
 
 
@@ -267,6 +281,32 @@ def crossed_legs_cm2(hips: np.ndarray | None, cues: np.ndarray, clearance_m: flo
     if d >= clearance_m or segment_distance(hips[0], cues[fr], hips[1], cues[fl]) < clearance_m:
         return 0.0
     return 1e4 * (clearance_m - d) ** 2
+
+
+def frame_costs(fitter: BodyFitter, cues: np.ndarray, rest_cues: np.ndarray, prev_axes: np.ndarray | None,
+                targets: SilhouetteTargets | None, config: IdentityConfig, feet: np.ndarray | None,
+                hips: np.ndarray | None, acquiring: bool, hands_on_head: bool = False) -> np.ndarray:
+    """One frame's costs (4,) for ``decide``: ``score_hypotheses`` (the shoes ``feet`` and the
+    fixed elbow pole only while ``acquiring``), with what the frame cannot tell apart taken out.
+    Without views the mirror is not scored (inf: the limits alone cannot see it); with the feet
+    together (``feet_together`` of the previous pose's ``hips``) the feet alternative scores as
+    the current labelling; with ``hands_on_head`` (a hand measured from a view that found it on
+    the head's blob, ``views.hands_on_head``) so do the alternatives that exchange the hands:
+    such a view cannot tell which arm reached up. Legs that pass through each other credit the
+    feet alternative (``crossed_legs_cm2``; module doc)."""
+    no_views = targets is None or targets.n_views == 0
+    together = feet_together(hips, cues, config.feet_together_hips)
+    skip = frozenset(k for k, off in ((_MIRROR, no_views), (_FEET, together)) if off)
+    costs = score_hypotheses(fitter, cues, rest_cues, prev_axes, targets, config, feet if acquiring else None,
+                             measured_elbows=not acquiring, skip=skip)
+    if no_views:
+        costs[1 + _MIRROR] = np.inf
+    if together:
+        costs[1 + _FEET] = costs[0]
+    if hands_on_head:
+        costs[[1 + _HANDS, 1 + _MIRROR]] = costs[0]
+    costs[1 + _FEET] -= config.crossed_legs_weight * crossed_legs_cm2(hips, cues)
+    return costs
 
 
 def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> int:

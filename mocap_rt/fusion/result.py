@@ -28,7 +28,7 @@ class FusionResult:
     until the bone lengths are estimated, to solve the early frames again, and for the last
     ``RELABEL_BACK_FRAMES``, which a switch of the labels may refit).
     joint_valid : (20,) bool, False for joints of a limb whose end cue was missing (that
-        limb is held where it was last estimated, or at the rest pose, ``tracker.hold_limbs``)
+        limb is held where it was last estimated, or at the rest pose, ``identity.hold_limbs``)
         and for all joints when there was no pose.
     """
 
@@ -58,7 +58,7 @@ LIMB_OF_CUE = {CUE_INDEX[f"{k}_{s}"]: [J[f"{n}_{s}"] for n in names]
 
 def joint_validity(have: np.ndarray) -> np.ndarray:
     """(20,) bool: the joints measured when the cues ``have`` (6,) bool are present (a
-    limb whose hand/foot cue is missing is held or at rest, ``tracker.hold_limbs``)."""
+    limb whose hand/foot cue is missing is held or at rest, ``identity.hold_limbs``)."""
     valid = np.ones(N_JOINTS, dtype=bool)
     for c, joints in LIMB_OF_CUE.items():
         if not have[c]:

@@ -60,8 +60,8 @@ from mocap_rt.cues import CameraCues, CuePrediction
 from mocap_rt.fusion.calibration import LengthCalibration, Lengths
 from mocap_rt.fusion.config import FusionConfig
 from mocap_rt.fusion.filter import CueFilter
-from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityState, crossed_legs_cm2, decide,
-                                      feet_together, feet_told_apart, score_hypotheses, swap_pairs)
+from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityState, decide, feet_told_apart,
+                                      frame_costs, hold_limbs, swap_pairs)
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.labels import fix_left_right
@@ -71,7 +71,7 @@ from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, beyond_reach, cue_
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
-from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, LIMB_CUES, N_CUES
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, N_CUES
 
 log = logging.getLogger(__name__)
 
@@ -84,21 +84,6 @@ _CONSENSUS_CUES = np.arange(N_CUES) != C_TORSO
 PRIOR_WEIGHT = 0.05
 _NO_CUES = np.zeros(N_CUES, dtype=bool)
 _HIPS = [J["hip_l"], J["hip_r"]]
-_FEET_ALT = ALTERNATIVES.index("feet")
-_HANDS_ALT = ALTERNATIVES.index("hands")
-_MIRROR_ALT = ALTERNATIVES.index("mirror")
-
-
-def hold_limbs(held: np.ndarray, cues_ik: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """``held`` (6, 3) with each hand and foot estimated in ``cues_ik`` (6, 3, NaN = not)
-    held at its offset from the torso cue in the body frame ``axes`` (3, 3): where the pose
-    puts that limb while no view measures it (``PoseSolver.fill_missing``). A hand behind the
-    head stays raised, where the rest pose dropped the arm (its hand 0.9 m off)."""
-    out = held.copy()
-    limbs = np.array(LIMB_CUES)
-    known = limbs[np.isfinite(cues_ik[limbs]).all(axis=1)]
-    out[known] = (cues_ik[known] - cues_ik[C_TORSO]) @ axes
-    return out
 
 
 class BodyTracker:
@@ -404,24 +389,12 @@ class BodyTracker:
                         feet: np.ndarray | None, hips: np.ndarray | None, hands_on_head: bool = False) -> int:
         """Score the hypotheses on ``cues`` (``_identity_input``); on a switch relabel the
         filter's tracks, turn the heading for a mirror and reset the limb swivels. Returns the
-        alternative switched to (index into ALTERNATIVES) or -1. With ``hands_on_head`` the
-        alternatives that exchange the hands score as the current labelling: a view that finds
-        a hand on the head's blob cannot tell which arm reached up."""
+        alternative switched to (index into ALTERNATIVES) or -1 (``identity.frame_costs``, with
+        ``hands_on_head``)."""
         cfg = self.config.identity
         acquiring = self.identity.frames < cfg.acquire_frames     # the legs score the facing only then
-        no_views = targets is None or targets.n_views == 0     # the limits alone cannot see a mirror
-        together = feet_together(hips, cues, cfg.feet_together_hips)   # the fit cannot tell the feet apart
-        skip = frozenset(k for k, off in ((_MIRROR_ALT, no_views), (_FEET_ALT, together)) if off)
-        costs = score_hypotheses(self.solver.fitter, cues, self.solver.rest_cues, prev_axes, targets, cfg,
-                                 feet if acquiring else None, measured_elbows=not acquiring, skip=skip)
-        if no_views:
-            costs[1 + _MIRROR_ALT] = np.inf
-        if together:
-            costs[1 + _FEET_ALT] = costs[0]      # scored as the current labelling (identity module doc)
-        if hands_on_head:
-            costs[[1 + _HANDS_ALT, 1 + _MIRROR_ALT]] = costs[0]
-        # legs that pass through each other: a credit to the feet alternative (identity module doc)
-        costs[1 + _FEET_ALT] -= cfg.crossed_legs_weight * crossed_legs_cm2(hips, cues)
+        costs = frame_costs(self.solver.fitter, cues, self.solver.rest_cues, prev_axes, targets, cfg, feet, hips,
+                            acquiring, hands_on_head)
         k = decide(self.identity, costs, cfg)
         self.identity.feet_decided |= feet_told_apart(hips, cues, cfg.feet_together_hips)   # identity module doc
         if k < 0:

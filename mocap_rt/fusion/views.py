@@ -19,6 +19,8 @@
 * ``predict_views`` — A.4: project the predicted 3D cues into every camera and test
   visibility with a Z-buffer on the distance from the camera centre: a cue is hidden
   when a nearer cue's disc covers its centre, or when it falls outside the image.
+* ``beyond_reach``, ``reject_duplicates`` — 3D cues that cannot be what they claim: a hand or
+  foot farther from the torso than the limb reaches, one on the head, one of a pair on the other.
 """
 
 from __future__ import annotations
@@ -341,7 +343,7 @@ def predict_views(proj: RigProjector, X: np.ndarray, radii_m: np.ndarray = CUE_R
 SAME_POINT_M = 0.03
 # A hand or foot farther from the torso cue than this many times the limb's reach (``torso_reach_m``
 # of the subject's lengths, or the default adult's before the calibration) is no measurement: in
-# the studio's truth no cue comes nearer than 1.05 of the subject's reach.
+# the studio's truth no cue lies farther than 1.05 times the subject's reach.
 REACH_MARGIN = 1.3
 
 

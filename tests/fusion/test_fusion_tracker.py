@@ -310,7 +310,7 @@ def test_a_held_limb_keeps_its_place_on_the_turning_body():
     from scipy.spatial.transform import Rotation
 
     from mocap_rt.fusion.solver import PoseSolver
-    from mocap_rt.fusion.tracker import hold_limbs
+    from mocap_rt.fusion.identity import hold_limbs
     from mocap_rt.names import C_HAND_L, C_HAND_R, C_HEAD, C_TORSO
 
     rz = lambda deg: Rotation.from_euler("z", deg, degrees=True).as_matrix()      # noqa: E731
