@@ -49,7 +49,8 @@ class CueFilter:
     """Constant-velocity Kalman filter for N 3D points (default the 6 cues).
 
     State: ``pos (N, 3)`` metres, ``vel (N, 3)`` m/s, ``cov (N, 2, 2)``, ``time_s`` of the
-    state, ``last_update_s (N,)``; ``alive (N,)`` bool.
+    state, ``last_update_s (N,)``; ``alive (N,)`` bool; ``started_s (N,)`` when each track was
+    last (re)started.
     """
 
     def __init__(self, n: int = N_CUES, config: FilterConfig = FilterConfig()) -> None:
@@ -63,6 +64,7 @@ class CueFilter:
         self.last_rejected = np.full((n, 3), np.nan)
         self.rejected_run = np.zeros(n, dtype=np.int64)   # consistent rejections so far
         self.last_rejected_s = np.full(n, -np.inf)
+        self.started_s = np.full(n, -np.inf)
         self.time_s: float | None = None
 
     def _propagate(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -133,6 +135,7 @@ class CueFilter:
         self.vel[start] = 0.0
         self.cov[start] = np.diag([cfg.measurement_noise_m ** 2, cfg.initial_velocity_std_mps ** 2])
         self.alive |= start
+        self.started_s[start] = time_s
         self.rejected_run[start] = 0
         self.last_rejected_s[start] = -np.inf
         accepted = ok | start
@@ -147,5 +150,10 @@ class CueFilter:
     def swap(self, a: int, b: int) -> None:
         """Exchange the whole state of tracks ``a`` and ``b`` (an identity fix, e.g. left/right)."""
         for arr in (self.pos, self.vel, self.cov, self.alive, self.last_update_s, self.last_meas,
-                    self.last_rejected, self.rejected_run, self.last_rejected_s):
+                    self.last_rejected, self.rejected_run, self.last_rejected_s, self.started_s):
             arr[[a, b]] = arr[[b, a]]
+
+    def end(self, tracks: np.ndarray) -> None:
+        """End the tracks ``tracks`` ((N,) bool): a measurement found to be another's (the next
+        one restarts them)."""
+        self.alive &= ~tracks

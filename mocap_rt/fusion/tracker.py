@@ -65,13 +65,14 @@ from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityS
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.labels import fix_left_right
-from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, beyond_reach, cue_pixels, frontal_pair, hands_on_head,
-                                   head_on_trunk, near_parallel_from_prior, predict_views, reject_duplicates,
+from mocap_rt.fusion.views import (CUE_RADII_M, RETURN_S, RigProjector, beyond_reach, blob_areas, cue_pixels,
+                                   frontal_pair, hands_on_head, head_on_trunk, near_parallel_from_prior,
+                                   pair_area_reference, pair_areas, predict_views, reject_duplicates, seen_twice,
                                    torso_reach_m, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton
-from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, N_CUES
+from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HEAD, C_TORSO, LR_PAIRS, N_CUES
 
 log = logging.getLogger(__name__)
 
@@ -114,6 +115,7 @@ class BodyTracker:
         self._vel: np.ndarray | None = None
         self._swivel = np.zeros(4)   # elbow/knee pole swivels (analytic.refine_swivel)
         self._held = np.full((N_CUES, 3), np.nan)   # hands/feet last estimated: offsets from the torso, body frame
+        self._pair_area = np.full((len(self.cameras), len(LR_PAIRS)), np.nan)   # one limb's blob (m^2) per view
         self.relabelled = 0   # views whose left/right labels fix_left_right swapped so far
         self.identity = IdentityState()
         self._pending = None          # fit_frame -> identify_frame: what the identity scores
@@ -266,7 +268,13 @@ class BodyTracker:
         X, used = self.triangulate(uv, w, self.filter.estimates())
         X = beyond_reach(X, self._reach)
         valid = np.isfinite(X).all(axis=1)
-        X = reject_duplicates(X, valid, used, pred, self.config.duplicate_m)
+        X = reject_duplicates(X, valid, used, pred, cfg.duplicate_m)
+        areas = pair_areas(self._proj, blob_areas(cues, self._index, w), uv, X)
+        returning = ~self.filter.alive | (t_s - self.filter.started_s < RETURN_S)
+        seen = np.isfinite(X).all(axis=1)
+        X = seen_twice(X, used, returning, areas, self._pair_area, cfg.duplicate_m)
+        self.filter.end(seen & ~np.isfinite(X).all(axis=1))      # its track was on the other limb
+        self._pair_area = pair_area_reference(self._pair_area, areas, X, cfg.duplicate_m)
         valid = np.isfinite(X).all(axis=1)
         t_id = time.perf_counter()
         timings["triangulate"] = (t_id - ts) * 1e3

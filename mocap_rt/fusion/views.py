@@ -19,8 +19,9 @@
 * ``predict_views`` — A.4: project the predicted 3D cues into every camera and test
   visibility with a Z-buffer on the distance from the camera centre: a cue is hidden
   when a nearer cue's disc covers its centre, or when it falls outside the image.
-* ``beyond_reach``, ``reject_duplicates`` — 3D cues that cannot be what they claim: a hand or
-  foot farther from the torso than the limb reaches, one on the head, one of a pair on the other.
+* ``beyond_reach``, ``reject_duplicates``, ``seen_twice`` — 3D cues that cannot be what they
+  claim: a hand or foot farther from the torso than the limb reaches, one on the head, one of a
+  pair on the other (the same point, or the two labels' blobs covering one limb's area).
 """
 
 from __future__ import annotations
@@ -393,4 +394,75 @@ def reject_duplicates(X: np.ndarray, valid: np.ndarray, used: np.ndarray, pred: 
             p = pred[c]
             if not (np.isfinite(p).all() and np.linalg.norm(p - X[C_HEAD]) < 2 * duplicate_m):
                 X[c] = np.nan
+    return X
+
+
+# A left/right pair measured within ``duplicate_m`` whose two blobs, in the median view that
+# found both, cover less than this many times one limb's blob (``pair_area_reference``) is one
+# limb labelled twice: one hand whose pixels perception split between both labels (the other
+# hand hidden) covers one hand's area, two hands held together two.
+SEEN_TWICE_RATIO = 1.4
+PAIR_AREA_RATE = 0.1       # the reference follows each frame of the limbs apart at this rate
+RETURN_S = 0.2             # a track (re)started this recently (s) is a hand or foot coming back
+
+
+def blob_areas(cues: Mapping[str, CameraCues], index: Mapping[str, int], w: np.ndarray) -> np.ndarray:
+    """(C, 6) each view's blob area (pixels) of a cue it measures (``w`` (C, 6) > 0), else (or
+    with no area given) NaN."""
+    area = np.full(w.shape, np.nan)
+    for name, cc in cues.items():
+        c = index.get(name)
+        if c is not None:
+            area[c] = cc.area
+    area[~((w > 0) & (area > 0))] = np.nan
+    return area
+
+
+def pair_areas(proj: RigProjector, area: np.ndarray, uv: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(C, 2) per view, the area (m^2, at the depth of the pair's 3D cues) that each left/right
+    pair's two blobs cover together, NaN where the view lacks either; two labels on the same
+    pixels (within a pixel) count once."""
+    out = np.full((len(proj.K), len(LR_PAIRS)), np.nan)
+    for p, (a, b) in enumerate(LR_PAIRS):
+        if not np.isfinite(X[[a, b]]).all():
+            continue
+        _, z, _ = proj.project(X[[a, b]])
+        same = np.linalg.norm(uv[:, a] - uv[:, b], axis=1) < 1.0
+        px = np.where(same, np.fmax(area[:, a], area[:, b]), area[:, a] + area[:, b])
+        out[:, p] = px * z.mean(axis=1) ** 2 / (proj.K[:, 0, 0] * proj.K[:, 1, 1])
+    return out
+
+
+def pair_area_reference(ref: np.ndarray, areas: np.ndarray, X: np.ndarray, duplicate_m: float) -> np.ndarray:
+    """The reference ``ref`` (C, 2) of one limb's blob area per view and pair (m^2, NaN: none
+    yet) followed by this frame's ``pair_areas`` (C, 2) halved where the pair's 3D cues X (6, 3)
+    lie more than twice ``duplicate_m`` apart (two limbs, each its own blob)."""
+    ref = ref.copy()
+    for p, (a, b) in enumerate(LR_PAIRS):
+        if np.isfinite(X[[a, b]]).all() and np.linalg.norm(X[a] - X[b]) > 2 * duplicate_m:
+            one = areas[:, p] / 2
+            ok = np.isfinite(one)
+            ref[ok, p] = np.where(np.isfinite(ref[ok, p]), ref[ok, p] + PAIR_AREA_RATE * (one[ok] - ref[ok, p]),
+                                  one[ok])
+    return ref
+
+
+def seen_twice(X: np.ndarray, used: np.ndarray, returning: np.ndarray, areas: np.ndarray, ref: np.ndarray,
+               duplicate_m: float) -> np.ndarray:
+    """A copy of the 3D cues X (6, 3) without a hand or foot coming back (``returning`` (6,) bool:
+    its track not alive or (re)started within ``RETURN_S``) on the other one of its pair: the two
+    within ``duplicate_m`` and their blobs (``pair_areas`` (C, 2)) covering less than
+    ``SEEN_TWICE_RATIO`` times one limb's (``pair_area_reference`` ``ref`` (C, 2)) in the median
+    of at least two views. Both coming back: the label seen by fewer views (``used`` (C, 6) bool)
+    goes. Distance alone cannot tell this from two hands held together; nor can the area two
+    tracked hands that clap (one hides the other in most views): both kept."""
+    X = X.copy()
+    for p, (a, b) in enumerate(LR_PAIRS):
+        back = [c for c in (a, b) if returning[c]]
+        if not (back and np.isfinite(X[[a, b]]).all() and np.linalg.norm(X[a] - X[b]) < duplicate_m):
+            continue
+        r = areas[:, p] / ref[:, p]
+        r = r[np.isfinite(r)]
+        if r.size >= 2 and np.median(r) < SEEN_TWICE_RATIO:
+            X[back[0] if len(back) == 1 else b if used[:, a].sum() >= used[:, b].sum() else a] = np.nan
     return X

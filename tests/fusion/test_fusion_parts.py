@@ -373,3 +373,52 @@ def test_a_limb_beyond_its_reach_from_the_torso_is_no_measurement(jumping_jacks)
         cues, joints = np.asarray(rec.truth["cues"]), np.asarray(rec.truth["joints"])
     subject = torso_reach_m(bone_lengths_from_joints(joints))
     assert all(np.isfinite(beyond_reach(c, subject)).all() for c in cues)
+
+
+def test_one_hand_split_between_both_labels_is_seen_twice_two_hands_together_are_not():
+    """Every view of a 6-camera ring sees a hand (5 cm radius) as a disc of pi (5 cm f / z)^2
+    pixels. With the hands apart, ``pair_area_reference`` learns one hand's area per view. Two
+    hands held 6 cm apart each cover a disc; one hand whose pixels perception split between both
+    labels (centres 6 cm apart, each half the disc) covers one: ``seen_twice`` drops the label
+    coming back there (its track not alive or just restarted), and neither of the two hands
+    together, nor of two tracked hands (a clap hides one hand behind the other)."""
+    from mocap_rt.fusion.views import SEEN_TWICE_RATIO, pair_area_reference, pair_areas, seen_twice
+    from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R
+
+    rig = ring_rig()
+    proj = RigProjector(rig.cameras)
+    f2 = proj.K[:, 0, 0] * proj.K[:, 1, 1]
+
+    def frame(X, share):
+        """pixels (C, 6, 2), areas (C, 6) of the hands: each ``share`` of its own disc."""
+        uv, z, _ = proj.project(X)
+        area = np.full(z.shape, np.nan)
+        for h in (C_HAND_L, C_HAND_R):
+            area[:, h] = share * np.pi * 0.05 ** 2 * f2 / z[:, h] ** 2
+        return uv, area
+
+    X = np.tile([0.0, 0.0, 1.0], (6, 1))
+    X[[C_FOOT_L, C_FOOT_R]] = np.nan                    # the feet: no pair to measure
+    X[C_HAND_L], X[C_HAND_R] = [-0.4, 0.2, 1.3], [0.4, 0.2, 1.3]
+    ref = np.full((len(rig.cameras), 2), np.nan)
+    for _ in range(3):
+        ref = pair_area_reference(ref, pair_areas(proj, frame(X, 1.0)[1], frame(X, 1.0)[0], X), X, 0.12)
+    np.testing.assert_allclose(ref[:, 0], np.pi * 0.05 ** 2, rtol=0.05)   # one hand's area, m^2
+    assert np.isnan(ref[:, 1]).all()
+    X[C_HAND_L] = X[C_HAND_R] + [0.06, 0.0, 0.0]
+    used = np.ones((len(rig.cameras), 6), bool)
+    returning = np.zeros(6, bool)
+    returning[C_HAND_L] = True                          # the left hand's track is not alive
+    uv, together = frame(X, 1.0)
+    np.testing.assert_array_equal(seen_twice(X, used, returning, pair_areas(proj, together, uv, X), ref, 0.12), X)
+    uv, split = frame(X, 0.5)
+    areas = pair_areas(proj, split, uv, X)
+    assert np.median(areas[:, 0] / ref[:, 0]) < SEEN_TWICE_RATIO
+    out = seen_twice(X, used, returning, areas, ref, 0.12)
+    assert np.isnan(out[C_HAND_L]).all() and np.isfinite(np.delete(out, [C_HAND_L, C_FOOT_L, C_FOOT_R], 0)).all()
+    returning = returning[[0, 2, 1, 3, 4, 5]]           # now the right hand came back
+    assert np.isnan(seen_twice(X, used, returning, areas, ref, 0.12)[C_HAND_R]).all()
+    np.testing.assert_array_equal(seen_twice(X, used, np.zeros(6, bool), areas, ref, 0.12), X)   # both tracked
+    X[C_HAND_L] = X[C_HAND_R] + [0.15, 0.0, 0.0]        # farther apart than duplicate_m: two hands
+    np.testing.assert_array_equal(seen_twice(X, used, returning, pair_areas(proj, split, frame(X, 0.5)[0], X), ref,
+                                             0.12), X)

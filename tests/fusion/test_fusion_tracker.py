@@ -346,3 +346,45 @@ def test_a_cold_start_with_the_hand_behind_the_head_puts_it_nowhere_off_the_body
                                        .cues_ik[C_HAND_R] - truth["cues"][f][C_HAND_R]) for f in range(25, n)])
     assert np.isfinite(err[4:]).all()
     assert np.nanmax(err) < 0.1
+
+
+@pytest.mark.parametrize("share", [0.5, 1.0])
+def test_a_hand_coming_back_on_the_other_is_that_hand_seen_twice_unless_both_are_there(backwards_walk_3s, share):
+    """Walking backwards, each view's hand blobs cover pi (5 cm f / z)^2 pixels; the left hand goes
+    unreported from frame 20, and from frame 45 (its track ended) every view reports it 6 px
+    beside the right hand. Perception splitting the right hand's pixels between both labels
+    (``share`` 0.5 of the blob each): one hand seen twice, the left never measured there
+    (``views.seen_twice``) while the right still is, within 3 cm. A blob of its own each (``share``
+    1.0: two hands held together): the left is measured beside the right."""
+    from mocap_rt.fusion.evaluate import truth_camera_cues
+    from mocap_rt.fusion.views import RigProjector
+    from mocap_rt.io.recording import Recording
+    from mocap_rt.names import C_HAND_L, C_HAND_R
+
+    with Recording(backwards_walk_3s) as rec:
+        truth, rig, n = rec.truth, rec.rig, rec.n_frames
+        names, widths = list(rec.rig.names), {c.name: int(c.size[0]) for c in rec.rig.cameras}
+    proj = RigProjector(rig.cameras)
+    tracker = BodyTracker(rig, FusionConfig(fps=30.0))
+    rng = np.random.default_rng(0)
+    left_measured, right_err = [], []
+    for f in range(n):
+        cues = truth_camera_cues(truth, names, f, f, 0.5, rng, widths)
+        _, z, _ = proj.project(truth["cues"][f])
+        for c, cc in enumerate(cues.values()):
+            cc.area[:] = np.where(cc.confidence > 0, np.pi * 0.05 ** 2 * proj.K[c, 0, 0] * proj.K[c, 1, 1] / z[c] ** 2,
+                                  0.0)
+            if f >= 20:
+                cc.xy[C_HAND_L], cc.confidence[C_HAND_L], cc.area[C_HAND_L] = np.nan, 0.0, 0.0
+                if f >= 45 and cc.confidence[C_HAND_R] > 0:
+                    cc.xy[C_HAND_L], cc.confidence[C_HAND_L] = cc.xy[C_HAND_R] + [6.0, 0.0], cc.confidence[C_HAND_R]
+                    cc.area[C_HAND_L] = cc.area[C_HAND_R] = share * cc.area[C_HAND_R]
+        r = tracker.step(f, cues)
+        if f >= 45:
+            left_measured.append(r.cue_valid[C_HAND_L])
+            right_err.append(np.linalg.norm(r.cues_3d[C_HAND_R] - truth["cues"][f][C_HAND_R]))
+    assert n - 45 >= 30
+    if share < 1.0:
+        assert not any(left_measured) and np.max(right_err) < 0.03
+    else:
+        assert np.mean(left_measured) > 0.9
