@@ -404,6 +404,7 @@ def reject_duplicates(X: np.ndarray, valid: np.ndarray, used: np.ndarray, pred: 
 SEEN_TWICE_RATIO = 1.4
 PAIR_AREA_RATE = 0.1       # the reference follows each frame of the limbs apart at this rate
 RETURN_S = 0.2             # a track (re)started this recently (s) is a hand or foot coming back
+_PAIR_A, _PAIR_B = np.array(LR_PAIRS).T
 
 
 def blob_areas(cues: Mapping[str, CameraCues], index: Mapping[str, int], w: np.ndarray) -> np.ndarray:
@@ -419,32 +420,24 @@ def blob_areas(cues: Mapping[str, CameraCues], index: Mapping[str, int], w: np.n
 
 
 def pair_areas(proj: RigProjector, area: np.ndarray, uv: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """(C, 2) per view, the area (m^2, at the depth of the pair's 3D cues) that each left/right
+    """(C, 2) per view, the area (m^2, at the depth of the pair's 3D middle) that each left/right
     pair's two blobs cover together, NaN where the view lacks either; two labels on the same
     pixels (within a pixel) count once."""
-    out = np.full((len(proj.K), len(LR_PAIRS)), np.nan)
-    for p, (a, b) in enumerate(LR_PAIRS):
-        if not np.isfinite(X[[a, b]]).all():
-            continue
-        _, z, _ = proj.project(X[[a, b]])
-        same = np.linalg.norm(uv[:, a] - uv[:, b], axis=1) < 1.0
-        px = np.where(same, np.fmax(area[:, a], area[:, b]), area[:, a] + area[:, b])
-        out[:, p] = px * z.mean(axis=1) ** 2 / (proj.K[:, 0, 0] * proj.K[:, 1, 1])
-    return out
+    a, b = _PAIR_A, _PAIR_B
+    z = proj.R[:, 2] @ (0.5 * (X[a] + X[b])).T + proj.t[:, 2:]          # (C, 2) the pairs' middles' depths
+    d = uv[:, a] - uv[:, b]
+    same = d[..., 0] ** 2 + d[..., 1] ** 2 < 1.0
+    px = np.where(same, np.fmax(area[:, a], area[:, b]), area[:, a] + area[:, b])
+    return px * z ** 2 / (proj.K[:, 0, 0] * proj.K[:, 1, 1])[:, None]
 
 
 def pair_area_reference(ref: np.ndarray, areas: np.ndarray, X: np.ndarray, duplicate_m: float) -> np.ndarray:
     """The reference ``ref`` (C, 2) of one limb's blob area per view and pair (m^2, NaN: none
     yet) followed by this frame's ``pair_areas`` (C, 2) halved where the pair's 3D cues X (6, 3)
     lie more than twice ``duplicate_m`` apart (two limbs, each its own blob)."""
-    ref = ref.copy()
-    for p, (a, b) in enumerate(LR_PAIRS):
-        if np.isfinite(X[[a, b]]).all() and np.linalg.norm(X[a] - X[b]) > 2 * duplicate_m:
-            one = areas[:, p] / 2
-            ok = np.isfinite(one)
-            ref[ok, p] = np.where(np.isfinite(ref[ok, p]), ref[ok, p] + PAIR_AREA_RATE * (one[ok] - ref[ok, p]),
-                                  one[ok])
-    return ref
+    apart = np.linalg.norm(X[_PAIR_A] - X[_PAIR_B], axis=1) > 2 * duplicate_m       # (2,), False if missing
+    one = np.where(apart, areas / 2, np.nan)
+    return np.where(np.isnan(one), ref, np.where(np.isnan(ref), one, ref + PAIR_AREA_RATE * (one - ref)))
 
 
 def seen_twice(X: np.ndarray, used: np.ndarray, returning: np.ndarray, areas: np.ndarray, ref: np.ndarray,
