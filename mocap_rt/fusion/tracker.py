@@ -6,7 +6,8 @@
 2. triangulate: the 2D cues of the cameras present, their left/right labels made to agree
    (``labels.fix_left_right``), triangulated by ``FusionConfig.views`` (``"all"``: every
    view that sees a cue, with reprojection outlier rejection; ``"pair"``: the frontal
-   pair of seed digest A.6);
+   pair of seed digest A.6); then the 3D cues that cannot be what they claim dropped
+   (``views.beyond_reach``, ``reject_duplicates``, ``seen_twice``);
 3. filter: a constant-velocity Kalman filter per cue (``fusion.filter``), gating and coasting;
 4. ik: the pan and limb swivels fitted to the silhouettes, the shoe blobs' axes
    (``body.foot_axis``) and the joint limits (``body.fit``), the analytic two-link IK
