@@ -365,7 +365,7 @@ def test_a_hand_coming_back_on_the_other_is_that_hand_seen_twice_unless_both_are
         truth, rig, n = rec.truth, rec.rig, rec.n_frames
         names, widths = list(rec.rig.names), {c.name: int(c.size[0]) for c in rec.rig.cameras}
     proj = RigProjector(rig.cameras)
-    tracker = BodyTracker(rig, FusionConfig(fps=30.0))
+    tracker = BodyTracker(rig, FusionConfig(fps=30.0, bone_lengths=bone_lengths_from_joints(truth["joints"])))
     rng = np.random.default_rng(0)
     left_measured, right_err = [], []
     for f in range(n):
