@@ -7,7 +7,7 @@
    (``labels.fix_left_right``), triangulated by ``FusionConfig.views`` (``"all"``: every
    view that sees a cue, with reprojection outlier rejection; ``"pair"``: the frontal
    pair of seed digest A.6); then the 3D cues that cannot be what they claim dropped
-   (``views.beyond_reach``, ``reject_duplicates``, ``seen_twice``);
+   (``fusion.cue_checks``);
 3. filter: a constant-velocity Kalman filter per cue (``fusion.filter``), gating and coasting;
 4. ik: the pan and limb swivels fitted to the silhouettes, the shoe blobs' axes
    (``body.foot_axis``) and the joint limits (``body.fit``), the analytic two-link IK
@@ -66,10 +66,10 @@ from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityS
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.labels import fix_left_right
-from mocap_rt.fusion.views import (CUE_RADII_M, RETURN_S, RigProjector, beyond_reach, blob_areas, cue_pixels,
-                                   frontal_pair, hands_on_head, head_on_trunk, near_parallel_from_prior,
-                                   pair_area_reference, pair_areas, predict_views, reject_duplicates, seen_twice,
-                                   torso_reach_m, triangulate_cues)
+from mocap_rt.fusion.cue_checks import (RETURN_S, beyond_reach, blob_areas, pair_area_reference, pair_areas,
+                                        reject_duplicates, seen_twice, torso_reach_m)
+from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, frontal_pair, hands_on_head, head_on_trunk,
+                                   near_parallel_from_prior, predict_views, triangulate_cues)
 from mocap_rt.geometry.ray_triangulator import RayTriangulator
 from mocap_rt.geometry.rig import Rig
 from mocap_rt.io.bvh import BvhSkeleton

@@ -352,7 +352,7 @@ def test_a_limb_beyond_its_reach_from_the_torso_is_no_measurement(jumping_jacks)
     apart) is kept with the subject's lengths."""
     from mocap_rt.body.estimate import bone_lengths_from_joints
     from mocap_rt.body.skeleton import BoneLengths
-    from mocap_rt.fusion.views import REACH_MARGIN, beyond_reach, torso_reach_m
+    from mocap_rt.fusion.cue_checks import REACH_MARGIN, beyond_reach, torso_reach_m
     from mocap_rt.io.recording import Recording
     from mocap_rt.names import C_FOOT_L, C_HAND_L, C_HAND_R, C_HEAD, C_TORSO
 
@@ -382,7 +382,7 @@ def test_one_hand_split_between_both_labels_is_seen_twice_two_hands_together_are
     labels (centres 6 cm apart, each half the disc) covers one: ``seen_twice`` drops the label
     coming back there (its track not alive or just restarted), and neither of the two hands
     together, nor of two tracked hands (a clap hides one hand behind the other)."""
-    from mocap_rt.fusion.views import SEEN_TWICE_RATIO, pair_area_reference, pair_areas, seen_twice
+    from mocap_rt.fusion.cue_checks import SEEN_TWICE_RATIO, pair_area_reference, pair_areas, seen_twice
     from mocap_rt.names import C_FOOT_L, C_FOOT_R, C_HAND_L, C_HAND_R
 
     rig = ring_rig()

@@ -354,7 +354,7 @@ def test_a_hand_coming_back_on_the_other_is_that_hand_seen_twice_unless_both_are
     unreported from frame 20, and from frame 45 (its track ended) every view reports it 6 px
     beside the right hand. Perception splitting the right hand's pixels between both labels
     (``share`` 0.5 of the blob each): one hand seen twice, the left never measured there
-    (``views.seen_twice``) while the right still is, within 3 cm. A blob of its own each (``share``
+    (``cue_checks.seen_twice``) while the right still is, within 3 cm. A blob of its own each (``share``
     1.0: two hands held together): the left is measured beside the right."""
     from mocap_rt.fusion.evaluate import truth_camera_cues
     from mocap_rt.fusion.views import RigProjector
