@@ -144,6 +144,12 @@ class BlobTracker:
         self._coast[k] = 0
         self._radius[k] = radius_px
 
+    def expected(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where the blobs' own tracks expect them in the coming frame, (K, 2) image px (constant
+        velocity; NaN once lost longer than ``max_coast_frames``), and their semi-major axes (K,) px."""
+        ahead = np.where(self._coast <= self.params.max_coast_frames, 1.0 + self._coast, np.nan)
+        return self._xy + self._vel * ahead[:, None], self._radius.copy()
+
     # ------------------------------------------------------------------ per frame
     def step(self, skin_roi: np.ndarray, roi_xy: tuple[int, int], person_box_roi: tuple[int, int, int, int],
              top_roi: tuple[float, float] | None, pred_xy: np.ndarray | None = None,

@@ -10,10 +10,15 @@ such a gap, through 4-connected overlaps): as ``scipy.ndimage.binary_fill_holes`
 inside, other components too, is filled. Measured on a 640x480 person ROI (~50 kpx, ~70 noise
 specks): docs/perception.md.
 
+With it may go the parts of the person the change test cut off (a shin in front of a background
+of its colour): the other components that reach a point where a head, hand or foot is expected.
+
 Coordinates: mask pixels (x right, y down); runs are half-open [a, b).
 """
 
 from __future__ import annotations
+
+import math
 
 import numba
 import numpy as np
@@ -156,13 +161,30 @@ def _filled(row_first, ra, rb, parent, root):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True)
-def largest_component_kernel(mask, min_area):  # pragma: no cover - numba
+def _reaches(row_first, ra, rb, parent, root, px, py, r):  # pragma: no cover - numba
+    """Whether a pixel of the component ``root`` lies within ``r`` of (px, py) (pixel centres)."""
+    r2 = r * r
+    for y in range(max(0, int(py - r) - 1), min(row_first.size - 1, int(py + r) + 2)):
+        dy = y - py
+        for k in range(row_first[y], row_first[y + 1]):
+            dx = max(ra[k] - px, 0.0, px - (rb[k] - 1))
+            if dx * dx + dy * dy <= r2 and _find(parent, k) == root:
+                return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def largest_component_kernel(mask, min_area, keep_xy, keep_r, keep_min_area):  # pragma: no cover - numba
     """(filled (bh, bw) uint8 {0, 255}, x, y, bw, bh) of the largest 8-connected component of
     ``mask`` (h, w) (nonzero = set) with its holes filled, in its bounding box. "Largest": of
     the three components with the most pixels (ties: first in raster order), the one whose
     filled area is largest (ties: the one with more pixels), as the contour route ranked its
     three longest outlines by enclosed area. An empty (0, 0) array and 0, 0, 0, 0 when that
-    filled area is below max(1, min_area)."""
+    filled area is below max(1, min_area).
+
+    Parts kept with it: every other component of at least ``keep_min_area`` pixels (0: none)
+    with a pixel within ``keep_r`` (M,) of one of the points ``keep_xy`` (M, 2) mask px (NaN:
+    none), each filled on its own, in the union of the boxes."""
     row_first, ra, rb = _row_runs(mask)
     n = ra.size
     parent = np.arange(n)
@@ -193,7 +215,7 @@ def largest_component_kernel(mask, min_area):  # pragma: no cover - numba
                 top[t] = k
                 break
     best_out = np.zeros((0, 0), np.uint8)
-    bx, by, bw, bh, best = 0, 0, 0, 0, 0
+    bx, by, bw, bh, best, best_root = 0, 0, 0, 0, 0, -1
     for t in range(3):
         if top[t] < 0:
             break
@@ -202,17 +224,50 @@ def largest_component_kernel(mask, min_area):  # pragma: no cover - numba
             continue                            # cannot fill more than the best so far
         out, x0, y0, w, h, filled = _filled(row_first, ra, rb, parent, top[t])
         if filled > best:
-            best_out, bx, by, bw, bh, best = out, x0, y0, w, h, filled
+            best_out, bx, by, bw, bh, best, best_root = out, x0, y0, w, h, filled, r
     if best < max(1, min_area):
         return np.zeros((0, 0), np.uint8), 0, 0, 0, 0
-    return best_out, bx, by, bw, bh
+    # the parts at the kept points, each filled on its own, pasted into the union of the boxes
+    parts = []
+    ux0, uy0, ux1, uy1 = bx, by, bx + bw, by + bh
+    for k in range(n):
+        if keep_min_area <= 0 or parent[k] != k or k == best_root or area[k] < keep_min_area:
+            continue
+        for i in range(keep_xy.shape[0]):
+            px, py, r = keep_xy[i, 0], keep_xy[i, 1], keep_r[i]
+            if not (math.isfinite(px) and math.isfinite(py) and r > 0):
+                continue
+            if px < lo_x[k] - r - 1 or px > hi_x[k] + r or py < lo_y[k] - r - 1 or py > hi_y[k] + r:
+                continue
+            if _reaches(row_first, ra, rb, parent, k, px, py, r):
+                out, x0, y0, w, h, _ = _filled(row_first, ra, rb, parent, k)
+                parts.append((out, x0, y0))
+                ux0, uy0, ux1, uy1 = min(ux0, x0), min(uy0, y0), max(ux1, x0 + w), max(uy1, y0 + h)
+                break
+    if len(parts) == 0:
+        return best_out, bx, by, bw, bh
+    union = np.zeros((uy1 - uy0, ux1 - ux0), np.uint8)
+    union[by - uy0:by - uy0 + bh, bx - ux0:bx - ux0 + bw] = best_out
+    for out, x0, y0 in parts:
+        h, w = out.shape
+        region = union[y0 - uy0:y0 - uy0 + h, x0 - ux0:x0 - ux0 + w]
+        np.maximum(region, out, region)
+    return union, ux0, uy0, ux1 - ux0, uy1 - uy0
 
 
-def largest_component_box(mask: np.ndarray, min_area_px: int = 0) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+_NO_POINTS = np.zeros((0, 2))
+
+
+def largest_component_box(mask: np.ndarray, min_area_px: int = 0, keep_xy: np.ndarray = _NO_POINTS,
+                          keep_r: np.ndarray = _NO_POINTS[:, 0], keep_min_area: int = 0,
+                          ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """(filled (bh, bw) uint8 {0, 255}, bbox (x, y, w, h) mask px) of the largest 8-connected
     component of ``mask`` (h, w) uint8 with its holes filled (module docstring); an empty array
-    and (0, 0, 0, 0) when its filled area is below ``min_area_px`` pixels."""
-    out, x, y, w, h = largest_component_kernel(mask, min_area_px)
+    and (0, 0, 0, 0) when its filled area is below ``min_area_px`` pixels. With it: the other
+    components of at least ``keep_min_area`` pixels that reach within ``keep_r`` (M,) of one of
+    the points ``keep_xy`` (M, 2) mask px (``largest_component_kernel``)."""
+    out, x, y, w, h = largest_component_kernel(mask, min_area_px, np.asarray(keep_xy, np.float64),
+                                               np.asarray(keep_r, np.float64), keep_min_area)
     return out, (int(x), int(y), int(w), int(h))
 
 

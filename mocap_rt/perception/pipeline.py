@@ -51,6 +51,7 @@ def _cue_rows(index: tuple[int, ...]) -> slice:
 
 _SKIN_IDX = _cue_rows(SKIN_CUE_INDEX)
 _SHOE_IDX = _cue_rows(SHOE_CUE_INDEX)
+PART_REACH_MAX_FRAC = 0.1   # a part's reach (``CameraPerceiver._expected_parts``) is at most this x image width
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,9 @@ class PerceptionConfig:
     roi_margin_frac: float = 0.05         # ... + this fraction of the box's larger side
     roi_motion_px: int = 6                # first ROI: the box moved by its last motion + this (roi.py); 0 = off
     min_person_area_px: int = 200         # smaller largest component: no person
+    part_min_px: int = 40                 # a separate changed component this large within reach of an expected
+                                          # head, hand or foot is the person's too (a leg crossing a background
+                                          # of its colour cuts the shoe off); 0 = off
     torso_ridge_frac: float = DEFAULT_RIDGE_FRAC
     torso_head_radii: float = TORSO_HEAD_RADII   # torso = head + this x head radius toward the ridge centroid
                                                  # (scene.py); 0 = the ridge centroid itself
@@ -176,7 +180,7 @@ class CameraPerceiver:
         if img.shape != (h, w, 3) or img.dtype != np.uint8:
             raise ValueError(f"camera {self.camera.name}: expected ({h}, {w}, 3) uint8 BGR, "
                              f"got {img.shape} {img.dtype}")
-        member, change, box = self._silhouette(img)
+        member, change, box = self._silhouette(img, *self._expected_parts(prediction))
         t1 = time.perf_counter()
         xy = np.full((N_CUES, 2), np.nan)
         cov = np.full((N_CUES, 2, 2), np.nan)
@@ -254,10 +258,28 @@ class CameraPerceiver:
         return CameraCues(self.camera.name, frame, xy, cov, area, conf, box, timings, compact, leg_xy)
 
     # ------------------------------------------------------------------ stages
-    def _silhouette(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int]]:
+    def _expected_parts(self, prediction: CuePrediction | None) -> tuple[np.ndarray, np.ndarray]:
+        """Where the head, hands and feet are expected this frame, (5, 2) image px, and how far
+        their pixels may lie from there, (5,) px: fusion's prediction, else the blobs' own 2D
+        tracks (``BlobTracker.expected``); the reach is twice the blob's radius, at most
+        ``PART_REACH_MAX_FRAC`` of the image's width (a forged radius claims no more)."""
+        if prediction is not None:
+            xy, r = prediction.xy[:C_TORSO], prediction.radius_px[:C_TORSO]
+        else:
+            xy, r = np.empty((C_TORSO, 2)), np.empty(C_TORSO)
+            for tracker, idx in ((self.skin_tracker, _SKIN_IDX), (self.shoe_tracker, _SHOE_IDX)):
+                xy[idx], r[idx] = tracker.expected()
+        with np.errstate(invalid="ignore"):
+            reach = np.clip(2.0 * r, 0.0, PART_REACH_MAX_FRAC * self._wh[0])
+        return xy, np.nan_to_num(reach, nan=0.0)
+
+    def _silhouette(self, img: np.ndarray, part_xy: np.ndarray, part_reach: np.ndarray,
+                    ) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int]]:
         """Filled component (bh, bw) uint8 {0, 255} and change codes (``change_mask``) in the
         person box (x, y, w, h) image px; the boundary clean-up is ``silhouette_colour``'s.
-        The regions searched are ``roi.roi_candidates``, smallest first."""
+        The regions searched are ``roi.roi_candidates``, smallest first. With the largest
+        component, the components of ``part_min_px`` pixels within ``part_reach`` (K,) of the
+        parts expected at ``part_xy`` (K, 2) image px (``_expected_parts``)."""
         w, h = self._wh
         cfg = self.config
         self._change.start()
@@ -267,7 +289,8 @@ class CameraPerceiver:
             mask = self._change.extend(img, self.background, cfg.change, (rx0, ry0, rx1, ry1))
             if self._close_kernel is not None:
                 mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._close_kernel)
-            member, (cx, cy, cw, ch) = largest_component_box(mask, cfg.min_person_area_px)
+            member, (cx, cy, cw, ch) = largest_component_box(mask, cfg.min_person_area_px, part_xy - (rx0, ry0),
+                                                             part_reach, cfg.part_min_px)
             touches = cw > 0 and ((cx == 0 and rx0 > 0) or (cy == 0 and ry0 > 0) or
                                   (cx + cw == rw and rx1 < w) or (cy + ch == rh and ry1 < h))
             if cw > 0 and not touches:

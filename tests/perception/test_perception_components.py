@@ -100,6 +100,59 @@ def test_same_as_opencv_contours_on_person_like_masks():
         np.testing.assert_array_equal(got, want[y:y + h, x:x + w])
 
 
+@settings(max_examples=200, deadline=None)
+@given(st.integers(4, 40), st.integers(4, 40), st.floats(0.05, 0.6), st.integers(0, 2**31 - 1),
+       st.integers(1, 4), st.sampled_from([0, 1, 3, 8]))
+def test_parts_within_reach_of_kept_points_join_the_largest_as_scipy_finds_them(h, w, density, seed, n_pts, part_min):
+    """Every other component of at least ``keep_min_area`` pixels (0: none) with a pixel within a
+    point's reach is kept, each filled on its own, in the union of the boxes: against scipy's labels,
+    fills and distance from each point to each pixel."""
+    rng = np.random.default_rng(seed)
+    mask = (rng.random((h, w)) < density).astype(np.uint8) * 255
+    pts = np.column_stack([rng.uniform(-2, w + 2, n_pts), rng.uniform(-2, h + 2, n_pts)])
+    pts[rng.random(n_pts) < 0.2] = np.nan
+    reach = rng.uniform(0, 6, n_pts)
+    got, box = largest_component_box(mask, 0, pts, reach, part_min)
+    ref = _reference(mask, 0)
+    if ref is None:
+        assert box == (0, 0, 0, 0)
+        return
+    want = np.zeros((h, w), bool)
+    x, y, bw, bh = ref[1]
+    want[y:y + bh, x:x + bw] = ref[0]
+    labels, n = ndimage.label(mask > 0, structure=np.ones((3, 3)))
+    biggest = np.bincount(labels[want & (mask > 0)]).argmax()
+    ys, xs = np.mgrid[:h, :w]
+    for k in range(1, n + 1):
+        part = labels == k
+        if k == biggest or part_min == 0 or part.sum() < part_min:
+            continue
+        d2 = (xs[None] - pts[:, 0, None, None]) ** 2 + (ys[None] - pts[:, 1, None, None]) ** 2
+        if (part[None] & (d2 <= (reach ** 2)[:, None, None])).any():
+            want |= ndimage.binary_fill_holes(part)
+    ys, xs = np.nonzero(want)
+    assert box == (xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+    np.testing.assert_array_equal(got > 0, want[box[1]:box[1] + box[3], box[0]:box[0] + box[2]])
+
+
+def test_a_shoe_cut_off_by_a_camouflaged_leg_is_kept_where_a_foot_is_expected():
+    """The person's body, and below it a shoe the change test separated from it (the shin in
+    front of a background of its colour) and a speck: with the foot expected at the shoe the
+    shoe joins the silhouette, the speck does not; expected elsewhere, or too small, it stays out."""
+    m = np.zeros((120, 80), np.uint8)
+    cv2.ellipse(m, (40, 40), (15, 35), 0, 0, 360, 255, -1)          # body, rows 5-75
+    m[100:106, 30:50] = 255                                         # shoe, 120 pixels, 25 rows below
+    m[110, 5] = 255                                                 # speck
+    body, box = largest_component_box(m, 0)
+    assert box[3] < 75
+    foot = np.array([[41.0, 103.0], [5.0, 110.0]])
+    got, box = largest_component_box(m, 0, foot, np.array([8.0, 8.0]), 40)
+    assert box == (25, 5, 31, 101)
+    assert got[100 - 5:106 - 5, 30 - 25:50 - 25].all() and (got[:body.shape[0]] == body).all()
+    assert largest_component_box(m, 0, foot + [0, -20], np.array([8.0, 8.0]), 40)[1][3] < 75     # out of reach
+    assert largest_component_box(m, 0, foot, np.array([8.0, 8.0]), 121)[1][3] < 75               # too small
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.sampled_from([1, 2, 3]), st.integers(1, 40))
 def test_clear_large_holes_matches_opencv_components(seed, step, min_area):

@@ -87,6 +87,33 @@ def test_prediction_offsets_move_the_cues_by_what_the_body_hides():
     np.testing.assert_array_equal(got.xy[3:5], plain.xy[3:5])          # the torso follows the head
 
 
+def test_shoes_cut_off_by_a_camouflaged_band_of_the_legs_are_kept_where_feet_are_expected():
+    """A band across both shins painted with the background (trousers in front of a backdrop of
+    their colour): the lower legs and shoes are components of their own. Without any expectation
+    the silhouette is the body above the band and the shoes are not found; where fusion's
+    prediction, or the shoes' own 2D tracks, expect them, they are the person's and found."""
+    sc = make_scene()
+    cut = sc.image.copy()
+    cut[320:332] = sc.background[0][320:332]
+    feet = [sc.centres[n] for n in ("foot_l", "foot_r")]
+
+    blind = CameraPerceiver(CAM, sc.background)
+    got = blind.process(cut, 0)
+    assert got.bbox[1] + got.bbox[3] <= 320 and not got.found[3:5].any()
+    xy = np.array([sc.centres[n] for n in CUE_NAMES[:5]] + [(np.nan, np.nan)], float)
+    pred = CuePrediction(CAM.name, 0, xy, np.ones(6, bool), np.full(6, 10.0))
+    got = CameraPerceiver(CAM, sc.background).process(cut, 0, pred)
+    np.testing.assert_allclose(got.xy[3:5], feet, atol=0.6)
+    tracked = CameraPerceiver(CAM, sc.background)
+    for f in range(3):
+        tracked.process(sc.image, f)
+    got = tracked.process(cut, 3)
+    np.testing.assert_allclose(got.xy[3:5], feet, atol=0.6)
+    assert tracked.last_silhouette[340:400].any()
+    pred = CuePrediction(CAM.name, 0, xy + [0, -130], np.ones(6, bool), np.full(6, 10.0))  # expected elsewhere
+    assert not CameraPerceiver(CAM, sc.background).process(cut, 0, pred).found[3:5].any()
+
+
 def test_bad_inputs_are_clear_errors(tmp_path):
     sc = make_scene(size=(320, 240))
     with pytest.raises(ValueError, match="size"):
