@@ -33,7 +33,7 @@ import numpy as np
 
 from mocap_rt.perception.blob_kernels import N_MOMENTS, REFINE_PARAMS, label_and_refine, params_record
 from mocap_rt.perception.region_kernels import acquire_regions
-from mocap_rt.perception.track_kernels import GATE_PARAMS, finish_frame, label_frame
+from mocap_rt.perception.track_kernels import GATE_PARAMS, expected_blobs, finish_frame, label_frame
 
 log = logging.getLogger(__name__)
 
@@ -144,11 +144,11 @@ class BlobTracker:
         self._coast[k] = 0
         self._radius[k] = radius_px
 
-    def expected(self) -> tuple[np.ndarray, np.ndarray]:
-        """Where the blobs' own tracks expect them in the coming frame, (K, 2) image px (constant
-        velocity; NaN once lost longer than ``max_coast_frames``), and their semi-major axes (K,) px."""
-        ahead = np.where(self._coast <= self.params.max_coast_frames, 1.0 + self._coast, np.nan)
-        return self._xy + self._vel * ahead[:, None], self._radius.copy()
+    def expected(self, out: np.ndarray) -> None:
+        """Where the blobs' own tracks expect them in the coming frame and their semi-major axes:
+        ``out`` (K, 3) x, y, radius, image px (constant velocity; NaN once lost longer than
+        ``max_coast_frames``)."""
+        expected_blobs(self._xy, self._vel, self._coast, self._radius, self.params.max_coast_frames, out)
 
     # ------------------------------------------------------------------ per frame
     def step(self, skin_roi: np.ndarray, roi_xy: tuple[int, int], person_box_roi: tuple[int, int, int, int],

@@ -174,7 +174,7 @@ def _reaches(row_first, ra, rb, parent, root, px, py, r):  # pragma: no cover - 
 
 
 @numba.njit(cache=True, nogil=True)
-def largest_component_kernel(mask, min_area, keep_xy, keep_r, keep_min_area):  # pragma: no cover - numba
+def largest_component_kernel(mask, min_area, parts, ox, oy, part_min_area):  # pragma: no cover - numba
     """(filled (bh, bw) uint8 {0, 255}, x, y, bw, bh) of the largest 8-connected component of
     ``mask`` (h, w) (nonzero = set) with its holes filled, in its bounding box. "Largest": of
     the three components with the most pixels (ties: first in raster order), the one whose
@@ -182,9 +182,10 @@ def largest_component_kernel(mask, min_area, keep_xy, keep_r, keep_min_area):  #
     three longest outlines by enclosed area. An empty (0, 0) array and 0, 0, 0, 0 when that
     filled area is below max(1, min_area).
 
-    Parts kept with it: every other component of at least ``keep_min_area`` pixels (0: none)
-    with a pixel within ``keep_r`` (M,) of one of the points ``keep_xy`` (M, 2) mask px (NaN:
-    none), each filled on its own, in the union of the boxes."""
+    Parts kept with it: every other component of at least ``part_min_area`` pixels (0: none)
+    with a pixel within reach of one of the points ``parts`` (M, 3): x, y, reach, px of an image
+    whose pixel (ox, oy) is the mask's (0, 0) (NaN: none); each filled on its own, in the union
+    of the boxes."""
     row_first, ra, rb = _row_runs(mask)
     n = ra.size
     parent = np.arange(n)
@@ -228,46 +229,46 @@ def largest_component_kernel(mask, min_area, keep_xy, keep_r, keep_min_area):  #
     if best < max(1, min_area):
         return np.zeros((0, 0), np.uint8), 0, 0, 0, 0
     # the parts at the kept points, each filled on its own, pasted into the union of the boxes
-    parts = []
+    kept = []
     ux0, uy0, ux1, uy1 = bx, by, bx + bw, by + bh
     for k in range(n):
-        if keep_min_area <= 0 or parent[k] != k or k == best_root or area[k] < keep_min_area:
+        if part_min_area <= 0 or parent[k] != k or k == best_root or area[k] < part_min_area:
             continue
-        for i in range(keep_xy.shape[0]):
-            px, py, r = keep_xy[i, 0], keep_xy[i, 1], keep_r[i]
+        for i in range(parts.shape[0]):
+            px, py, r = parts[i, 0] - ox, parts[i, 1] - oy, parts[i, 2]
             if not (math.isfinite(px) and math.isfinite(py) and r > 0):
                 continue
             if px < lo_x[k] - r - 1 or px > hi_x[k] + r or py < lo_y[k] - r - 1 or py > hi_y[k] + r:
                 continue
             if _reaches(row_first, ra, rb, parent, k, px, py, r):
                 out, x0, y0, w, h, _ = _filled(row_first, ra, rb, parent, k)
-                parts.append((out, x0, y0))
+                kept.append((out, x0, y0))
                 ux0, uy0, ux1, uy1 = min(ux0, x0), min(uy0, y0), max(ux1, x0 + w), max(uy1, y0 + h)
                 break
-    if len(parts) == 0:
+    if len(kept) == 0:
         return best_out, bx, by, bw, bh
     union = np.zeros((uy1 - uy0, ux1 - ux0), np.uint8)
     union[by - uy0:by - uy0 + bh, bx - ux0:bx - ux0 + bw] = best_out
-    for out, x0, y0 in parts:
+    for out, x0, y0 in kept:
         h, w = out.shape
         region = union[y0 - uy0:y0 - uy0 + h, x0 - ux0:x0 - ux0 + w]
         np.maximum(region, out, region)
     return union, ux0, uy0, ux1 - ux0, uy1 - uy0
 
 
-_NO_POINTS = np.zeros((0, 2))
+NO_PARTS = np.zeros((0, 3))
 
 
-def largest_component_box(mask: np.ndarray, min_area_px: int = 0, keep_xy: np.ndarray = _NO_POINTS,
-                          keep_r: np.ndarray = _NO_POINTS[:, 0], keep_min_area: int = 0,
+def largest_component_box(mask: np.ndarray, min_area_px: int = 0, parts: np.ndarray = NO_PARTS,
+                          origin: tuple[int, int] = (0, 0), part_min_area: int = 0,
                           ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """(filled (bh, bw) uint8 {0, 255}, bbox (x, y, w, h) mask px) of the largest 8-connected
     component of ``mask`` (h, w) uint8 with its holes filled (module docstring); an empty array
     and (0, 0, 0, 0) when its filled area is below ``min_area_px`` pixels. With it: the other
-    components of at least ``keep_min_area`` pixels that reach within ``keep_r`` (M,) of one of
-    the points ``keep_xy`` (M, 2) mask px (``largest_component_kernel``)."""
-    out, x, y, w, h = largest_component_kernel(mask, min_area_px, np.asarray(keep_xy, np.float64),
-                                               np.asarray(keep_r, np.float64), keep_min_area)
+    components of at least ``part_min_area`` pixels within reach of one of the ``parts`` (M, 3)
+    float64 (x, y, reach) px of an image whose pixel ``origin`` is the mask's (0, 0)
+    (``largest_component_kernel``)."""
+    out, x, y, w, h = largest_component_kernel(mask, min_area_px, parts, origin[0], origin[1], part_min_area)
     return out, (int(x), int(y), int(w), int(h))
 
 

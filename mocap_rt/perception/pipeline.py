@@ -142,6 +142,8 @@ class CameraPerceiver:
         self._emax = (self.skin_model.max_error, self.shoe_model.max_error)
         self.skin_tracker = BlobTracker(SKIN_CUES, config.skin_blobs)
         self.shoe_tracker = BlobTracker(SHOE_CUES, config.shoe_blobs)
+        self._parts = np.empty((C_TORSO, 3))      # ``_expected_parts``' output
+        self._reach_max = PART_REACH_MAX_FRAC * self._wh[0]
         self._torso_step = config.torso_step_px or (2 if w > 400 else 1)
         self._box: tuple[int, int, int, int] | None = None      # last person box, image px
         self._prev_box: tuple[int, int, int, int] | None = None  # ... and the one before
@@ -180,7 +182,7 @@ class CameraPerceiver:
         if img.shape != (h, w, 3) or img.dtype != np.uint8:
             raise ValueError(f"camera {self.camera.name}: expected ({h}, {w}, 3) uint8 BGR, "
                              f"got {img.shape} {img.dtype}")
-        member, change, box = self._silhouette(img, *self._expected_parts(prediction))
+        member, change, box = self._silhouette(img, self._expected_parts(prediction))
         t1 = time.perf_counter()
         xy = np.full((N_CUES, 2), np.nan)
         cov = np.full((N_CUES, 2, 2), np.nan)
@@ -258,28 +260,30 @@ class CameraPerceiver:
         return CameraCues(self.camera.name, frame, xy, cov, area, conf, box, timings, compact, leg_xy)
 
     # ------------------------------------------------------------------ stages
-    def _expected_parts(self, prediction: CuePrediction | None) -> tuple[np.ndarray, np.ndarray]:
-        """Where the head, hands and feet are expected this frame, (5, 2) image px, and how far
-        their pixels may lie from there, (5,) px: fusion's prediction, else the blobs' own 2D
-        tracks (``BlobTracker.expected``); the reach is twice the blob's radius, at most
-        ``PART_REACH_MAX_FRAC`` of the image's width (a forged radius claims no more)."""
+    def _expected_parts(self, prediction: CuePrediction | None) -> np.ndarray:
+        """(5, 3) x, y, reach, image px: where the head, hands and feet are expected this frame
+        and how far their pixels may lie from there (NaN: not expected): fusion's prediction,
+        else the blobs' own 2D tracks (``BlobTracker.expected``); the reach is twice the blob's
+        radius, at most ``PART_REACH_MAX_FRAC`` of the image's width (a forged radius claims no more)."""
+        parts = self._parts
         if prediction is not None:
-            xy, r = prediction.xy[:C_TORSO], prediction.radius_px[:C_TORSO]
+            parts[:, :2] = prediction.xy[:C_TORSO]
+            parts[:, 2] = prediction.radius_px[:C_TORSO]
         else:
-            xy, r = np.empty((C_TORSO, 2)), np.empty(C_TORSO)
-            for tracker, idx in ((self.skin_tracker, _SKIN_IDX), (self.shoe_tracker, _SHOE_IDX)):
-                xy[idx], r[idx] = tracker.expected()
-        with np.errstate(invalid="ignore"):
-            reach = np.clip(2.0 * r, 0.0, PART_REACH_MAX_FRAC * self._wh[0])
-        return xy, np.nan_to_num(reach, nan=0.0)
+            self.skin_tracker.expected(parts[_SKIN_IDX])
+            self.shoe_tracker.expected(parts[_SHOE_IDX])
+        reach = parts[:, 2]
+        reach *= 2.0
+        np.minimum(reach, self._reach_max, out=reach)
+        return parts
 
-    def _silhouette(self, img: np.ndarray, part_xy: np.ndarray, part_reach: np.ndarray,
+    def _silhouette(self, img: np.ndarray, parts: np.ndarray,
                     ) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int]]:
         """Filled component (bh, bw) uint8 {0, 255} and change codes (``change_mask``) in the
         person box (x, y, w, h) image px; the boundary clean-up is ``silhouette_colour``'s.
         The regions searched are ``roi.roi_candidates``, smallest first. With the largest
-        component, the components of ``part_min_px`` pixels within ``part_reach`` (K,) of the
-        parts expected at ``part_xy`` (K, 2) image px (``_expected_parts``)."""
+        component, the components of ``part_min_px`` pixels within reach of the ``parts`` (K, 3)
+        expected (``_expected_parts``)."""
         w, h = self._wh
         cfg = self.config
         self._change.start()
@@ -289,8 +293,8 @@ class CameraPerceiver:
             mask = self._change.extend(img, self.background, cfg.change, (rx0, ry0, rx1, ry1))
             if self._close_kernel is not None:
                 mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._close_kernel)
-            member, (cx, cy, cw, ch) = largest_component_box(mask, cfg.min_person_area_px, part_xy - (rx0, ry0),
-                                                             part_reach, cfg.part_min_px)
+            member, (cx, cy, cw, ch) = largest_component_box(mask, cfg.min_person_area_px, parts, (rx0, ry0),
+                                                             cfg.part_min_px)
             touches = cw > 0 and ((cx == 0 and rx0 > 0) or (cy == 0 and ry0 > 0) or
                                   (cx + cw == rw and rx1 < w) or (cy + ch == rh and ry1 < h))
             if cw > 0 and not touches:

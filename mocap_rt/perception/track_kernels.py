@@ -46,6 +46,18 @@ def update_tracks(found, new_xy, new_cov, xy, vel, radius, coast, last_seen, max
 
 
 @numba.njit(cache=True, nogil=True)
+def expected_blobs(xy, vel, coast, radius, max_coast, out):  # pragma: no cover - numba
+    """``out`` (K, 3): each blob's position expected in the coming frame from its own track
+    (constant velocity, image px; NaN once lost longer than ``max_coast`` frames) and its
+    semi-major axis ``radius`` (px)."""
+    for k in range(xy.shape[0]):
+        ahead = 1.0 + coast[k] if coast[k] <= max_coast else np.nan
+        out[k, 0] = xy[k, 0] + vel[k, 0] * ahead
+        out[k, 1] = xy[k, 1] + vel[k, 1] * ahead
+        out[k, 2] = radius[k]
+
+
+@numba.njit(cache=True, nogil=True)
 def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_pred, ox, oy, gp,
                   centers, gate):  # pragma: no cover - numba
     """Labelling centres (ROI px) and gate radii of one tracker for a frame.

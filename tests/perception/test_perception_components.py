@@ -112,7 +112,7 @@ def test_parts_within_reach_of_kept_points_join_the_largest_as_scipy_finds_them(
     pts = np.column_stack([rng.uniform(-2, w + 2, n_pts), rng.uniform(-2, h + 2, n_pts)])
     pts[rng.random(n_pts) < 0.2] = np.nan
     reach = rng.uniform(0, 6, n_pts)
-    got, box = largest_component_box(mask, 0, pts, reach, part_min)
+    got, box = largest_component_box(mask, 0, np.column_stack([pts + 5.0, reach]), (5, 5), part_min)
     ref = _reference(mask, 0)
     if ref is None:
         assert box == (0, 0, 0, 0)
@@ -145,12 +145,13 @@ def test_a_shoe_cut_off_by_a_camouflaged_leg_is_kept_where_a_foot_is_expected():
     m[110, 5] = 255                                                 # speck
     body, box = largest_component_box(m, 0)
     assert box[3] < 75
-    foot = np.array([[41.0, 103.0], [5.0, 110.0]])
-    got, box = largest_component_box(m, 0, foot, np.array([8.0, 8.0]), 40)
+    foot = np.array([[41.0, 103.0, 8.0], [5.0, 110.0, 8.0]])
+    got, box = largest_component_box(m, 0, foot, (0, 0), 40)
     assert box == (25, 5, 31, 101)
     assert got[100 - 5:106 - 5, 30 - 25:50 - 25].all() and (got[:body.shape[0]] == body).all()
-    assert largest_component_box(m, 0, foot + [0, -20], np.array([8.0, 8.0]), 40)[1][3] < 75     # out of reach
-    assert largest_component_box(m, 0, foot, np.array([8.0, 8.0]), 121)[1][3] < 75               # too small
+    assert largest_component_box(m, 0, foot + [0, -20, 0], (0, 0), 40)[1][3] < 75        # out of reach
+    assert largest_component_box(m, 0, foot, (0, 0), 121)[1][3] < 75                     # too small
+    assert largest_component_box(m[20:], 0, foot, (0, 20), 40)[1] == (25, 0, 31, 86)       # image px, mask offset
 
 
 @settings(max_examples=60, deadline=None)
