@@ -20,7 +20,7 @@
    the pose between the two, so the identity (a third of a frame's work, and all of a cold
    start's search round the circle) is not in its latency; a switch shows there from the next
    frame on (it takes several frames of evidence). ``step`` (offline) returns the frame that
-   switched refitted with its new labels.
+   switched refitted with its new labels (``fusion.relabel``).
 
 ``predict(frame)`` extrapolates the filter to a coming frame and gives every camera the
 predicted 2D cues with Z-buffer visibility and blob radius (A.4), and where the last pose's
@@ -46,7 +46,6 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import replace
 
 import numpy as np
 
@@ -66,6 +65,7 @@ from mocap_rt.fusion.identity import (ALTERNATIVE_PAIRS, ALTERNATIVES, IdentityS
 from mocap_rt.fusion.result import FusionResult, joint_validity
 from mocap_rt.fusion.solver import PoseSolver
 from mocap_rt.fusion.labels import fix_left_right
+from mocap_rt.fusion.relabel import relabelled, with_labels
 from mocap_rt.fusion.cue_checks import (RETURN_S, beyond_reach, blob_areas, pair_area_reference, pair_areas,
                                         reject_duplicates, seen_twice, torso_reach_m)
 from mocap_rt.fusion.views import (CUE_RADII_M, RigProjector, cue_pixels, frontal_pair, hands_on_head, head_on_trunk,
@@ -358,7 +358,8 @@ class BodyTracker:
                 cues_ik = swap_pairs(cues_ik, k)
                 root, angles, joints, axes = self._solve_and_keep(cues_ik, targets,
                                                                   None if feet is None else swap_pairs(feet, k))
-                result = self._relabelled(result, k, cues_ik, (root, angles, joints, axes, self._swivel.copy()))
+                result = relabelled(result, k, cues_ik, self.published,
+                                    (root, angles, joints, axes, self._swivel.copy()))
             self._maybe_calibrate(X, axes, cues_ik, targets)      # the bone-length sample, with the labels settled
         ms = (time.perf_counter() - t0) * 1e3
         result.timings_ms["identify"] = result.timings_ms.get("identify", 0.0) + ms
@@ -366,33 +367,10 @@ class BodyTracker:
         return result
 
     def with_labels(self, result: FusionResult, k: int) -> FusionResult:
-        """A past frame's ``result`` with alternative k's labels (index into ALTERNATIVES): its
-        cues exchanged and its pose fitted again from its axes (turned by 180 deg for a mirror),
-        as ``identify_frame`` refits the frame that switches; on its silhouettes when it kept
-        them. Stateless: what ``fusion.offline`` applies to the frames a switch reaches back to
-        (``IdentityState.last_switch``)."""
-        cues_ik = swap_pairs(result.cues_ik, k)
-        if result.axes is None or not np.isfinite(cues_ik[[C_HEAD, C_TORSO]]).all():
-            return self._relabelled(result, k, cues_ik)
-        axes = result.axes * [-1.0, -1.0, 1.0] if ALTERNATIVES[k] == "mirror" else result.axes
-        swivel = np.zeros(4)
-        targets = result.targets
-        if targets is not None and targets.n_views > 0:
-            fit = self.solver.fitter.fit(self.solver.fill_missing(cues_ik, axes), axes, swivel, targets)
-            axes, swivel = fit.axes, fit.swivel
-        root, angles, joints = self.published.solve(cues_ik, axes, swivel, targets)
-        return self._relabelled(result, k, cues_ik, (root, angles, joints, axes, swivel))
-
-    def _relabelled(self, result: FusionResult, k: int, cues_ik: np.ndarray, pose: tuple | None = None) -> FusionResult:
-        """``result`` with alternative k's labels on its cues and ``cues_ik`` (exchanged already),
-        and ``pose`` = (root, angles, joints, axes, swivel) solved on them (None: no pose)."""
-        out = replace(result, cues_3d=swap_pairs(result.cues_3d, k), cue_valid=swap_pairs(result.cue_valid, k),
-                      cues_ik=cues_ik, joint_valid=joint_validity(np.isfinite(cues_ik).all(axis=1)))
-        if pose is None:
-            return out
-        root, angles, joints, axes, swivel = pose
-        return replace(out, root_pos=root, angles=angles, joints=joints, bvh_frame=self.published.bvh_row(root, angles),
-                       pan_rad=pan_angle(axes), axes=axes, swivel=swivel)
+        """A past frame's ``result`` with alternative k's labels (``relabel.with_labels``, on
+        this tracker's solvers): what ``fusion.offline`` applies to the frames a switch reaches
+        back to (``IdentityState.last_switch``)."""
+        return with_labels(result, k, self.solver, self.published)
 
     def _score_identity(self, cues: np.ndarray, prev_axes: np.ndarray | None, targets: SilhouetteTargets | None,
                         feet: np.ndarray | None, hips: np.ndarray | None, hands_on_head: bool = False) -> int:
