@@ -45,15 +45,21 @@ def update_tracks(found, new_xy, new_cov, xy, vel, radius, coast, last_seen, max
         coast[k] = 0
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _coasted(xy, vel, coast, max_coast, k):  # pragma: no cover - numba
+    """Blob k's own prediction for the coming frame (constant velocity, image px), NaN after
+    ``max_coast`` lost frames."""
+    if coast[k] > max_coast:
+        return np.nan, np.nan
+    return xy[k, 0] + vel[k, 0] * (1 + coast[k]), xy[k, 1] + vel[k, 1] * (1 + coast[k])
+
+
 @numba.njit(cache=True, nogil=True)
 def expected_blobs(xy, vel, coast, radius, max_coast, out):  # pragma: no cover - numba
     """``out`` (K, 3): each blob's position expected in the coming frame from its own track
-    (constant velocity, image px; NaN once lost longer than ``max_coast`` frames) and its
-    semi-major axis ``radius`` (px)."""
+    (``_coasted``, image px) and its semi-major axis ``radius`` (px)."""
     for k in range(xy.shape[0]):
-        ahead = 1.0 + coast[k] if coast[k] <= max_coast else np.nan
-        out[k, 0] = xy[k, 0] + vel[k, 0] * ahead
-        out[k, 1] = xy[k, 1] + vel[k, 1] * ahead
+        out[k, 0], out[k, 1] = _coasted(xy, vel, coast, max_coast, k)
         out[k, 2] = radius[k]
 
 
@@ -62,18 +68,13 @@ def predict_gates(xy, vel, coast, radius, max_coast, pred_xy, pred_radius, use_p
                   centers, gate):  # pragma: no cover - numba
     """Labelling centres (ROI px) and gate radii of one tracker for a frame.
 
-    Own prediction: constant velocity, NaN after ``max_coast`` lost frames. With
+    Own prediction: ``_coasted`` (constant velocity, NaN after ``max_coast`` lost frames). With
     ``use_pred`` the given prediction (image px) wins where finite, and the radius is the
     larger of the predicted one and the blob's own semi-major axis. gp: (1,) ``GATE_PARAMS`` record.
     """
     q = gp[0]
     for k in range(xy.shape[0]):
-        if coast[k] > max_coast:
-            cx = np.nan
-            cy = np.nan
-        else:
-            cx = xy[k, 0] + vel[k, 0] * (1 + coast[k])
-            cy = xy[k, 1] + vel[k, 1] * (1 + coast[k])
+        cx, cy = _coasted(xy, vel, coast, max_coast, k)
         r = radius[k]
         if use_pred:
             if math.isfinite(pred_xy[k, 0]) and math.isfinite(pred_xy[k, 1]):
