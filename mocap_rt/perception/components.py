@@ -167,7 +167,7 @@ def _reaches(row_first, ra, rb, parent, root, px, py, r):  # pragma: no cover - 
     for y in range(max(0, int(py - r) - 1), min(row_first.size - 1, int(py + r) + 2)):
         dy = y - py
         for k in range(row_first[y], row_first[y + 1]):
-            dx = max(ra[k] - px, 0.0, px - (rb[k] - 1))
+            dx = min(max(math.floor(px + 0.5), ra[k]), rb[k] - 1) - px   # the run's nearest pixel centre
             if dx * dx + dy * dy <= r2 and _find(parent, k) == root:
                 return True
     return False
