@@ -3,7 +3,7 @@
 import cv2
 import numpy as np
 import pytest
-from conftest import make_background, make_scene
+from perception_scenes import make_background, make_scene
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 

@@ -4,7 +4,7 @@ mask grown band by band, and cues identical to the margin ROI's."""
 from dataclasses import replace
 
 import numpy as np
-from conftest import make_scene
+from perception_scenes import make_scene
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

@@ -3,7 +3,7 @@ head re-seated on top of the trunk when a hand carried its label away."""
 
 import cv2
 import numpy as np
-from conftest import make_scene
+from perception_scenes import make_scene
 
 from mocap_rt.geometry.rig import ring_rig
 from mocap_rt.names import CUE_NAMES, SKIN_CUES

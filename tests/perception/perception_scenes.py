@@ -4,6 +4,8 @@ A textured background; a person drawn with OpenCV: trunk and limbs in clothing c
 head and hands in a skin colour from the UCI table's typical skin, shoes in the studio's
 shoe colour; a shadow (background darkened by a factor) beside the person; optional
 global flicker. Returns the image, the truth mask and the truth blob centres.
+
+A module of its own (not conftest.py): the tests import it by a name no other test directory has.
 """
 
 from __future__ import annotations
@@ -13,7 +15,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import pytest
 
 SKIN_RGB = np.array([224, 172, 140])        # a typical light skin tone (R, G, B)
 SHOE_RGB = np.array([46, 158, 38])          # the studio's green shoes (R, G, B)
@@ -100,7 +101,3 @@ def make_scene(size=(640, 480), cx=320.0, seed=1, shadow=0.55, flicker=1.0, **pe
     noisy = np.clip(canvas + rng.normal(0, 2.0, canvas.shape), 0, 255).astype(np.uint8)
     return Scene(noisy, bg, mask > 0, centres)
 
-
-@pytest.fixture
-def scene_factory():
-    return make_scene
