@@ -118,13 +118,6 @@ class IdentityState:
     the track's frames: its labels were the cold start's guess; so too for a feet switch until
     ``feet_decided``). ``feet_decided``: a frame has told the feet apart (set by the caller,
     ``BodyTracker``) or a switch has exchanged them (``decide``).
-
-    stretch (3,): the frames (this one included) of the stretch ending at this frame over which
-    each alternative's summed gain (current - alternative cost) is largest, since the last
-    switch (``stretch_gain`` (3,) that sum; Kadane's running maximum): the frames whose own costs
-    support the alternative as a whole, at least ``won``; ``last_stretch``: the last switch's
-    alternative's, what a switch may carry back at most where tracking alone would allow more
-    (``fusion.offline``).
     """
 
     evidence: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES)))
@@ -134,20 +127,12 @@ class IdentityState:
     won: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES), np.int64))
     last_switch: tuple[int, int] = (-1, 0)
     feet_decided: bool = False
-    stretch: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES), np.int64))
-    stretch_gain: np.ndarray = field(default_factory=lambda: np.zeros(len(ALTERNATIVES)))
-    last_stretch: int = 0
 
     def reset(self) -> None:
         self.evidence[:] = 0.0
         self.frames = 0
         self.won[:] = 0
         self.feet_decided = False
-        self._clear_stretch()
-
-    def _clear_stretch(self) -> None:
-        self.stretch[:] = 0
-        self.stretch_gain[:] = 0.0
 
 
 def swap_pairs(X: np.ndarray, k: int) -> np.ndarray:
@@ -332,9 +317,6 @@ def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> i
     gain = np.where(np.isfinite(gain), gain, 0.0)
     state.evidence = config.decay * state.evidence + gain
     state.won = np.where(gain > 0, state.won + 1, 0)
-    extend = state.stretch_gain > 0
-    state.stretch = np.where(extend, state.stretch + 1, 1)
-    state.stretch_gain = gain + np.where(extend, state.stretch_gain, 0.0)
     state.frames += 1
     acquiring = state.frames <= config.acquire_frames
     need = config.switch_evidence * (config.acquire_factor if acquiring else 1.0)
@@ -357,8 +339,6 @@ def decide(state: IdentityState, costs: np.ndarray, config: IdentityConfig) -> i
     # frames the alternative won in a row
     undecided = ALTERNATIVES[k] == "feet" and not state.feet_decided
     state.last_switch = (k, state.frames if acquiring or undecided else int(state.won[k]))
-    state.last_stretch = int(state.stretch[k])
-    state._clear_stretch()
     state.feet_decided |= ALTERNATIVES[k] != "hands"
     state.evidence[:] = 0.0
     state.won[:] = 0

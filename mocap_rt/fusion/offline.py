@@ -95,10 +95,8 @@ def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: i
     place): while acquiring, or for feet that nothing had decided, the track's frames, else
     those the alternative won in a row (``IdentityState.last_switch``), and for the exchange of
     one pair further back, the frames tracking alone carried that pair to this one
-    (``_tracked_apart``) as far as those frames' own costs support the exchange (the stretch
-    before the switch with the largest summed gain, ``IdentityState.last_stretch``: a frame
-    that fitted the old labels better keeps them); not for the mirror, which after the
-    acquisition is mostly wrong, docs/body.md. A mirror that follows a mirror
+    (``_tracked_apart``; not for the mirror, which after the acquisition is mostly wrong,
+    docs/body.md). A mirror that follows a mirror
     (``previous``: the last switch's alternative and first frame carried back) undoes it: it
     reaches back as far as that one did. Never before the track, at most
     ``RELABEL_BACK_FRAMES``. The live service cannot: it has published them. Returns this
@@ -109,8 +107,7 @@ def _relabel_back(tracker: BodyTracker, results: list[FusionResult], switches: i
     k, won = state.last_switch
     now = len(results) - 1
     mirror = ALTERNATIVES[k] == "mirror"
-    back = max(won - 1, 0 if mirror else min(_tracked_apart(results, ALTERNATIVE_PAIRS[k], now),
-                                             state.last_stretch - 1))
+    back = max(won - 1, 0 if mirror else _tracked_apart(results, ALTERNATIVE_PAIRS[k], now))
     if mirror and previous is not None and previous[0] == k:
         back = max(back, now - previous[1])
     back = min(back, state.frames - 1, RELABEL_BACK_FRAMES, now)

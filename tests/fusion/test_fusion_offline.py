@@ -179,43 +179,6 @@ def test_a_mirror_that_follows_a_mirror_reaches_back_as_far():
     assert run({20: (mirror, 2), 25: (feet, 1), 30: (mirror, 3)}) == [(19, mirror), (28, mirror), (29, mirror)]
 
 
-def test_a_pair_exchanged_reaches_back_as_far_as_tracking_carried_it_and_its_costs_support_it():
-    """A feet switch past the acquisition, the feet measured 0.5 m apart for the last 30 frames
-    (tracking alone carried their labels that far, ``_tracked_apart``): it reaches back over those
-    frames only as far as their own costs supported the exchange (``IdentityState.last_stretch``),
-    never less than the frames it won in a row, never further than the feet were apart."""
-    from mocap_rt.fusion.identity import ALTERNATIVES, FEET, IdentityState
-    from mocap_rt.fusion.offline import _relabel_back
-    from mocap_rt.fusion.result import FusionResult
-
-    feet = ALTERNATIVES.index("feet")
-
-    class Tracker:
-        def __init__(self):
-            self.identity = IdentityState(frames=100, feet_decided=True)
-            self.relabelled: list[int] = []
-
-        def with_labels(self, r, k):
-            self.relabelled.append(r.frame)
-            return r
-
-    def relabelled(won, stretch):
-        t = Tracker()
-        results = []
-        for f in range(40):
-            cues = np.zeros((6, 3))
-            cues[FEET[1], 0] = 0.5 if f >= 10 else 0.0          # apart from frame 10 on
-            results.append(FusionResult(f, cues, np.ones(6, bool), np.zeros((20, 3)), np.zeros(1), (), {}))
-        t.identity.last_switch, t.identity.last_stretch = (feet, won), stretch
-        t.identity.switches = 1
-        _relabel_back(t, results, 0, None)
-        return t.relabelled
-
-    assert relabelled(2, 6) == list(range(34, 39))          # the stretch its costs supported
-    assert relabelled(8, 6) == list(range(32, 39))          # the frames it won in a row
-    assert relabelled(2, 100) == list(range(10, 39))        # as far as the feet were apart
-
-
 def test_the_torso_written_is_the_fused_bodys_midpoint_projected_where_a_camera_found_one():
     """``with_fused_torso`` (what ``mocap-rt perceive``'s closed loop writes, issue 12 item 4):
     the pelvis-neck midpoint of the fused joints projected by OpenCV (the oracle) into each
