@@ -256,10 +256,10 @@ def largest_component_kernel(mask, min_area, parts, ox, oy, part_min_area):  # p
     return union, ux0, uy0, ux1 - ux0, uy1 - uy0
 
 
-NO_PARTS = np.zeros((0, 3))
+_NO_PARTS = np.zeros((0, 3))
 
 
-def largest_component_box(mask: np.ndarray, min_area_px: int = 0, parts: np.ndarray = NO_PARTS,
+def largest_component_box(mask: np.ndarray, min_area_px: int = 0, parts: np.ndarray = _NO_PARTS,
                           origin: tuple[int, int] = (0, 0), part_min_area: int = 0,
                           ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """(filled (bh, bw) uint8 {0, 255}, bbox (x, y, w, h) mask px) of the largest 8-connected

@@ -105,7 +105,7 @@ def test_same_as_opencv_contours_on_person_like_masks():
        st.integers(1, 4), st.sampled_from([0, 1, 3, 8]))
 @example(26, 38, 0.25, 1021, 3, 1)   # a point 0.38 px from a pixel centre, reach 0.29, inside the run's span
 def test_parts_within_reach_of_kept_points_join_the_largest_as_scipy_finds_them(h, w, density, seed, n_pts, part_min):
-    """Every other component of at least ``keep_min_area`` pixels (0: none) with a pixel within a
+    """Every other component of at least ``part_min_area`` pixels (0: none) with a pixel within a
     point's reach is kept, each filled on its own, in the union of the boxes: against scipy's labels,
     fills and distance from each point to each pixel."""
     rng = np.random.default_rng(seed)
