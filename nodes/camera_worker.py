@@ -38,6 +38,7 @@ from nodes.runtime import IdleGC, NodeRuntime, ThreadPriority
 
 log = logging.getLogger(__name__)
 
+QUICK_EXIT = True               # it holds no file: the fork server ends it without the interpreter's teardown
 PREVIEW_JPEG_QUALITY = 70
 TRIGGER_WAIT_S = 0.2           # wake up this often to send status while idle
 PREDICTIONS_KEPT = 8           # predictions for the coming frames kept by frame id

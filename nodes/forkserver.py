@@ -31,6 +31,7 @@ server exits.
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib
 import json
 import logging
@@ -80,6 +81,24 @@ def _child(req: dict, stdin_fd: int, log_fd: int, sock: socket.socket):
         return 1
 
 
+def _quick_exit(code) -> None:
+    """End a node whose module says ``QUICK_EXIT = True`` (it holds no file that only the
+    interpreter's teardown would close: the frame-path nodes) with ``code`` (as ``SystemExit``
+    takes it), after its exit handlers (the logs' flush, multiprocessing's children) but without
+    that teardown: in a child of the fork server it freed the server's every module, object and
+    ~100 numba kernels page by page, copied on write first (0.6-1.4 s a node of a cluster's
+    stop on 2 cores; the recorder, viewer and streamer end as before)."""
+    if code is None:
+        code = 0
+    elif not isinstance(code, int):
+        print(code, file=sys.stderr)
+        code = 1
+    atexit._run_exitfuncs()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 def _send(sock: socket.socket, msg: dict) -> None:
     sock.send(json.dumps(msg).encode())
 
@@ -91,7 +110,10 @@ def _fork(req: dict, fds: list[int], sock: socket.socket) -> int:
     if pid == 0:
         # the node's end is a process's end: the interpreter exits from here with its code and runs
         # the exit handlers (rerun finishes its file there), never returning into the server's loop
-        raise SystemExit(_child(req, fds[0], fds[1], sock))
+        code = _child(req, fds[0], fds[1], sock)
+        if getattr(sys.modules.get(req["module"]), "QUICK_EXIT", False):
+            _quick_exit(code)
+        raise SystemExit(code)
     for fd in fds:
         os.close(fd)
     return pid

@@ -25,6 +25,7 @@ from nodes.runtime import IdleGC, NodeRuntime
 
 log = logging.getLogger(__name__)
 
+QUICK_EXIT = True               # it holds no file: the fork server ends it without the interpreter's teardown
 SPIN_S = 0.0005               # final busy-wait before a trigger, for sub-ms punctuality
 PEER_WAIT_S = 10.0            # --expect-peers: wait at most this long for the links
 DECLARE_SETTLE_S = 0.2        # after the links are up, let subscriber declarations arrive

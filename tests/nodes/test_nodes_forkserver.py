@@ -67,6 +67,17 @@ def test_exit_codes_are_those_of_popen_and_a_crash_leaves_its_traceback(server, 
         server.spawn([str(HERE / "fork_probe.py")], tmp_path / "x.log")      # modules only
 
 
+@pytest.mark.parametrize("arg, code", [("4", 4), ("0", 0), ("bad input", 1)])
+def test_a_quick_exit_node_runs_its_exit_handlers_but_not_the_teardown(server, tmp_path, arg, code):
+    log = tmp_path / "quick.log"
+    p = server.spawn(["-m", "fork_probe", "quick", arg], log)
+    assert p.wait(60) == code
+    text = log.read_text()
+    assert "exit handler ran" in text                       # atexit: the logs' flush, multiprocessing
+    assert "finaliser ran" not in text                      # the teardown of every object is skipped
+    assert ("bad input" in text) == (code == 1)             # a message exit code is printed, as Python does
+
+
 @pytest.mark.parametrize("how", ["close", "kill -9"])
 def test_the_children_end_with_the_server(server, tmp_path, how):
     kids = [server.spawn(["-m", "fork_probe", "sleep"], tmp_path / f"s{i}.log") for i in range(2)]
