@@ -13,10 +13,17 @@ from mocap_rt.io.recording import Recording
 
 pytest.importorskip("gi", reason="PyGObject (gi) is not installed: `make system-deps setup` installs it")
 gst_source = pytest.importorskip("nodes.gst_source")
-try:
-    gst_source.gst_modules()
-except ImportError as exc:                      # gi without GStreamer's typelibs
-    pytest.skip(str(exc), allow_module_level=True)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _gstreamer():
+    """GStreamer initialised (``Gst.init``) when these tests run, not when they are collected:
+    every pytest-xdist worker collects every module, and the library tests' worker has no use
+    for GStreamer's state in its process."""
+    try:
+        gst_source.gst_modules()
+    except ImportError as exc:                  # gi without GStreamer's typelibs
+        pytest.skip(str(exc))
 
 from nodes.sources import open_source  # noqa: E402
 
