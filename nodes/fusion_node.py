@@ -35,10 +35,10 @@ from nodes.runtime import IdleGC, NodeRuntime
 
 log = logging.getLogger(__name__)
 
+QUICK_EXIT = True               # it holds no file: the fork server ends it without the interpreter's teardown
 # a standing person's cues (head, hand_l, hand_r, foot_l, foot_r, torso), metres, world
 WARM_UP_CUES_M = np.array([[0.0, 0.0, 1.7], [0.35, 0.0, 1.0], [-0.35, 0.0, 1.0],
                            [0.12, 0.0, 0.05], [-0.12, 0.0, 0.05], [0.0, 0.0, 1.25]])
-QUICK_EXIT = True               # it holds no file: the fork server ends it without the interpreter's teardown
 WARM_UP_FRAMES = 3
 WARM_UP_COV_PX2 = 4.0
 
