@@ -7,7 +7,7 @@ GST_STAMP := $(VENV)/.installed-gst
 # uv (from PyPI, into the venv) installs the project: ~40 s from a cold cache where pip takes ~3.5 min.
 # --compile-bytecode: uv writes no .pyc by default, and where PYTHONDONTWRITEBYTECODE is set (this
 # workplace) no process ever does, so each one compiled numpy's, scipy's and numba's sources again
-# at import (a perceiver's first frame 2.5-3.0 s after start; 0.9-1.1 s with the .pyc, ~9 s once here)
+# at import (a perceiver's first frame 2.5-3.4 s after start; 0.9-1.4 s with the .pyc, ~9 s once here)
 UV      := $(BIN)/uv pip install --python $(BIN)/python --quiet --compile-bytecode
 DATA    ?= ../shared/data
 DEMO_DIR ?= out/demo

@@ -13,6 +13,7 @@ from mocap_rt.io.recording import Recording
 
 pytest.importorskip("gi", reason="PyGObject (gi) is not installed: `make system-deps setup` installs it")
 gst_source = pytest.importorskip("nodes.gst_source")
+from nodes.sources import open_source  # noqa: E402
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -24,8 +25,6 @@ def _gstreamer():
         gst_source.gst_modules()
     except ImportError as exc:                  # gi without GStreamer's typelibs
         pytest.skip(str(exc))
-
-from nodes.sources import open_source  # noqa: E402
 
 
 def _camera(w=320, h=240, name="cam_1"):
